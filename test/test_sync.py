@@ -1,0 +1,166 @@
+"""Encoder stream conditioning and wheel angles at scan stamps, against exact answers."""
+import math
+
+import numpy as np
+import pytest
+
+from sclam_ros.inputs import Rejections, Scan
+from sclam_ros.sync import (
+    EncoderStream,
+    ScanSynchronizer,
+    SyncConfig,
+    consecutive_increments,
+    increment_between,
+)
+
+TICKS = 4096.0  # ticks per revolution
+RAD_PER_TICK = 2 * math.pi / TICKS
+
+
+def scan_at(t):
+    return Scan(stamp=t, ranges=np.ones(4), angle_min=0.0, angle_increment=0.1, range_min=0.1, range_max=10.0)
+
+
+def test_16bit_counter_wraparound_unwrapped_exactly():
+    """Wheels turning 40 ticks per sample both ways through a 16-bit counter's wrap."""
+    stream = EncoderStream(ticks_per_revolution=TICKS, encoder_wrap=65536)
+    true_left = np.arange(0, 4000) * 40 + 65000  # crosses 65536 at sample 14, then twice more
+    true_right = 1000 - np.arange(0, 4000) * 40  # goes below 0 and wraps downwards
+    for i, (l, r) in enumerate(zip(true_left, true_right)):
+        stream.add(0.02 * i, float(l % 65536), float(r % 65536))
+    samples = stream.samples()[-200:]
+    first = len(true_left) - len(samples)
+    # Differences of the unwrapped angles are exactly the true tick differences.
+    got_left = np.array([s.left for s in samples]) - samples[0].left
+    got_right = np.array([s.right for s in samples]) - samples[0].right
+    # Not a tick lost or gained (1e-6 tick is float rounding of the tick→rad conversion).
+    np.testing.assert_allclose(got_left / RAD_PER_TICK, true_left[first:] - true_left[first], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(got_right / RAD_PER_TICK, true_right[first:] - true_right[first], rtol=0, atol=1e-6)
+    assert true_left[-1] > 3 * 65536 and true_right[-1] < -2 * 65536  # several wraps each way
+    assert stream.rejections.total() == 0 and not stream.segment_breaks
+
+
+def test_radian_positions_pass_through_when_ticks_per_revolution_is_zero():
+    stream = EncoderStream()
+    stream.add(0.0, 1.0, -2.0)
+    stream.add(0.1, 1.5, -2.25)
+    w = stream.wheel_angles_at(0.05)
+    np.testing.assert_allclose(w.angles, [1.25, -2.125])
+
+
+def test_interpolation_exact_for_constant_speed_wheels():
+    """Irregular encoder stamps, constant wheel speeds: interpolation must be exact."""
+    rng = np.random.default_rng(1)
+    stamps = np.cumsum(rng.uniform(0.005, 0.03, 300)) + 100.0
+    w_left, w_right = 3.7, -1.3  # rad/s
+    stream = EncoderStream(ticks_per_revolution=0.0, config=SyncConfig(max_history=100.0))
+    for t in stamps:
+        stream.add(t, w_left * (t - 100.0), w_right * (t - 100.0))
+    for t in rng.uniform(stamps[0], stamps[-1], 100):
+        w = stream.wheel_angles_at(t)
+        np.testing.assert_allclose(w.angles, [w_left * (t - 100.0), w_right * (t - 100.0)], atol=1e-9)
+    assert stream.wheel_angles_at(stamps[0] - 1e-3) is None
+    assert stream.wheel_angles_at(stamps[-1] + 1e-3) is None
+
+
+def test_duplicate_and_out_of_order_stamps_are_counted_not_fatal():
+    stream = EncoderStream()
+    stream.add(1.0, 0.0, 0.0)
+    stream.add(1.1, 0.1, 0.1)
+    assert not stream.add(1.1, 0.2, 0.2)  # duplicate stamp
+    assert not stream.add(1.05, 0.05, 0.05)  # a little back in time: one late sample
+    assert not stream.add(1.2, math.nan, 0.3)
+    assert stream.add(1.2, 0.2, 0.2)
+    assert stream.rejections.counts == {
+        "encoder_duplicate_stamp": 1, "encoder_non_monotonic": 1, "encoder_non_finite": 1}
+    assert len(stream) == 3 and not stream.segment_breaks
+    np.testing.assert_allclose(stream.wheel_angles_at(1.15).angles, [0.15, 0.15])
+
+
+def test_clock_jump_backward_resets_without_a_giant_increment():
+    """A bag played in a loop: stamps go back 60 s and the counter back to its start."""
+    stream = EncoderStream(ticks_per_revolution=TICKS, encoder_wrap=65536)
+    sync = ScanSynchronizer(stream)
+    synced = []
+    for lap in range(2):
+        for i in range(0, 3001):  # 60 s at 50 Hz, 20 ticks per sample
+            t = 1000.0 + 0.02 * i
+            synced += sync.add_encoder(t, float((20 * i) % 65536), float((20 * i) % 65536))
+            if i % 5 == 2:
+                synced += sync.add_scan(scan_at(t + 0.001))
+    synced += sync.flush()
+    rejections = Rejections()
+    incs = list(consecutive_increments(synced, stream, rejections))
+    expected = 20 * 5 * RAD_PER_TICK  # per scan interval
+    dphi = np.array([inc.dphi for inc in incs])
+    np.testing.assert_allclose(dphi, expected, rtol=1e-9)  # no giant (negative) increment
+    assert rejections.counts == {"increment_across_clock_jump_backward": 1}
+    assert stream.segment_breaks == {"clock_jump_backward": 1}
+    assert len(incs) == len(synced) - 2
+
+
+def test_gap_and_counter_reset_break_segments_and_pairs_are_dropped():
+    stream = EncoderStream(ticks_per_revolution=TICKS, encoder_wrap=0.0, config=SyncConfig(max_scan_latency=2.0))
+    sync = ScanSynchronizer(stream)
+    synced = []
+    ticks = 0.0
+    for i in range(500):
+        t = 0.02 * i
+        ticks += 10.0
+        if i == 400:
+            ticks = -123456.0  # the driver restarted and its counter with it
+        if not 200 <= i < 260:  # 1.2 s of silence from the driver
+            synced += sync.add_encoder(t, ticks, ticks)
+        if i % 5 == 1:
+            synced += sync.add_scan(scan_at(t + 0.005))
+    synced += sync.flush()
+    rejections = Rejections()
+    incs = list(consecutive_increments(synced, stream, rejections))
+    assert stream.segment_breaks == {"gap": 1, "encoder_jump": 1}
+    # Scans inside the silence have no wheel angles; the pairs across both breaks are dropped.
+    assert sync.rejections.counts["scan_in_encoder_gap"] == 12
+    assert rejections.counts == {"increment_across_gap": 1, "increment_across_encoder_jump": 1}
+    np.testing.assert_allclose([inc.dphi for inc in incs], 50 * RAD_PER_TICK, rtol=1e-9)
+    np.testing.assert_allclose([inc.dt for inc in incs], 0.1, atol=1e-9)
+
+
+def test_scans_wait_for_late_encoders_and_are_dropped_after_the_latency_limit():
+    stream = EncoderStream(config=SyncConfig(max_scan_latency=0.5))
+    sync = ScanSynchronizer(stream)
+    assert sync.add_encoder(0.0, 0.0, 0.0) == []
+    assert sync.add_scan(scan_at(0.05)) == []  # not covered yet: waits
+    ready = sync.add_encoder(0.1, 1.0, 2.0)
+    assert [s.scan.stamp for s in ready] == [0.05]
+    np.testing.assert_allclose(ready[0].wheels.angles, [0.5, 1.0])
+    # Encoders stop; scans keep coming: the oldest waiting scans are dropped and counted.
+    for k in range(1, 10):
+        sync.add_scan(scan_at(0.15 + 0.1 * k))  # 0.25 ... 1.05 s
+    assert sync.rejections.counts["scan_no_encoder_coverage"] == 3  # 0.25, 0.35, 0.45 s
+    sync.flush()
+    assert sync.rejections.counts["scan_no_encoder_coverage"] == 9
+
+
+def test_memory_stays_bounded_online():
+    stream = EncoderStream(config=SyncConfig(max_history=10.0))
+    sync = ScanSynchronizer(stream)
+    for i in range(50_000):  # 1000 s at 50 Hz with scans at 10 Hz
+        t = 0.02 * i
+        sync.add_encoder(t, t, t)
+        if i % 5 == 0:
+            sync.add_scan(scan_at(t - 0.01))
+    assert len(stream) < 10
+
+
+def test_increment_between_non_consecutive_scans_sums_the_wheel_motion():
+    stream = EncoderStream()
+    sync = ScanSynchronizer(stream)
+    synced = []
+    for i in range(101):
+        t = 0.01 * i
+        synced += sync.add_encoder(t, 2.0 * t, -t)
+        if i in (13, 47, 88):
+            synced += sync.add_scan(scan_at(t + 0.003))
+    inc, reason = increment_between(synced[0], synced[2], stream)
+    assert reason is None and inc.index_from == 0 and inc.index_to == 2
+    np.testing.assert_allclose(inc.dphi, [2.0 * 0.75, -0.75], atol=1e-12)
+    assert inc.dt == pytest.approx(0.75)
