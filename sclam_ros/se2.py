@@ -88,3 +88,41 @@ def to_matrix4(pose):
     m[:2, :2] = rotation(pose[2])
     m[:2, 3] = pose[:2]
     return m
+
+
+# --- Jacobians -------------------------------------------------------------------------
+# Poses are perturbed additively, x ⊕ Δ = (x + Δx, y + Δy, wrap(θ + Δθ)), so these are
+# plain partial derivatives with respect to (x, y, θ).
+
+
+def _block(rot, col_theta, d_theta_theta):
+    """Assemble (..., 3, 3) Jacobians [[rot, col_theta], [0, 0, d_theta_theta]]."""
+    shape = rot.shape[:-2]
+    jac = np.zeros(shape + (3, 3))
+    jac[..., :2, :2] = rot
+    jac[..., :2, 2] = col_theta
+    jac[..., 2, 2] = d_theta_theta
+    return jac
+
+
+def compose_with_jacobians(a, b):
+    """c = a ⊕ b with ∂c/∂a and ∂c/∂b, each (..., 3, 3)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    c = compose(a, b)
+    rot_a = rotation(a[..., 2])
+    # ∂(R(θa) t_b)/∂θa = R(θa) S t_b = S R(θa) t_b, the rotated t_b turned by 90°.
+    rotated_tb = rotate(a[..., 2], b[..., :2])
+    j_a = _block(np.broadcast_to(np.eye(2), rot_a.shape), rotated_tb @ S.T, 1.0)
+    j_b = _block(rot_a, 0.0, 1.0)
+    return c, j_a, j_b
+
+
+def between_with_jacobians(a, b):
+    """e = a ⊖ b (= b⁻¹ ∘ a) with ∂e/∂a and ∂e/∂b, each (..., 3, 3)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    e = between(a, b)
+    rot_bt = np.swapaxes(rotation(b[..., 2]), -1, -2)
+    j_a = _block(rot_bt, 0.0, 1.0)
+    # ∂(R(θb)ᵀ(t_a − t_b))/∂θb = −S R(θb)ᵀ(t_a − t_b) = −S e_t.
+    j_b = _block(-rot_bt, -(e[..., :2] @ S.T), -1.0)
+    return e, j_a, j_b

@@ -1,0 +1,360 @@
+"""Generic sparse Levenberg-Marquardt over named variable blocks.
+
+The solver never special-cases a factor: it linearises every factor, whitens with the
+factor's square-root information, applies the factor type's robust kernel as IRLS weights,
+stacks one sparse Jacobian, and solves (H + λ·diag(H)) Δ = −g with a sparse LU. The
+update y ← y ⊕ Δ is additive with angles wrapped, matching factors.py's Jacobians.
+
+Gauge: scan matching and odometry only constrain relative motion, so the first pose is
+held fixed (its columns are removed), which is the standard choice for a pose graph.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from . import se2
+
+# --- robust kernels ----------------------------------------------------------------------
+# ρ(s) of the squared whitened residual norm s; the IRLS weight is ρ'(s).
+
+
+@dataclass(frozen=True)
+class TrivialKernel:
+    def rho(self, s):
+        return s
+
+    def weight(self, s):
+        return np.ones_like(s)
+
+
+@dataclass(frozen=True)
+class HuberKernel:
+    """Quadratic within `delta` whitened σ, linear beyond: outlier scan matches lose pull."""
+
+    delta: float = 3.0
+
+    def rho(self, s):
+        d2 = self.delta**2
+        return np.where(s <= d2, s, 2.0 * self.delta * np.sqrt(s) - d2)
+
+    def weight(self, s):
+        return np.where(s <= self.delta**2, 1.0, self.delta / np.sqrt(np.maximum(s, 1e-300)))
+
+
+@dataclass(frozen=True)
+class CauchyKernel:
+    c: float = 3.0
+
+    def rho(self, s):
+        return self.c**2 * np.log1p(s / self.c**2)
+
+    def weight(self, s):
+        return 1.0 / (1.0 + s / self.c**2)
+
+
+# --- values -------------------------------------------------------------------------------
+
+
+class Values(dict):
+    """Named blocks of variables, each an array (count, dim), plus which columns are angles."""
+
+    def __init__(self, blocks=None, angular=None):
+        super().__init__()
+        self.angular = {}
+        for name, value in (blocks or {}).items():
+            self.add(name, value, (angular or {}).get(name))
+
+    def add(self, name, value, angular=None):
+        value = np.array(value, float, ndmin=2)
+        self[name] = value
+        if angular is None:
+            angular = np.zeros(value.shape[1], bool)
+        self.angular[name] = np.asarray(angular, bool)
+
+    def copy(self):
+        out = Values()
+        for name, value in self.items():
+            out.add(name, value.copy(), self.angular[name])
+        return out
+
+    def retract(self, layout, delta):
+        """y ⊕ Δ for the free rows described by `layout`."""
+        out = self.copy()
+        for name, (rows, offset) in layout.blocks.items():
+            dim = self[name].shape[1]
+            out[name][rows] += delta[offset : offset + len(rows) * dim].reshape(-1, dim)
+            ang = self.angular[name]
+            if ang.any():
+                out[name][:, ang] = se2.wrap_angle(out[name][:, ang])
+        return out
+
+
+@dataclass
+class Layout:
+    """Where each free variable row lives in the column vector of the linear system."""
+
+    blocks: dict  # name -> (free row indices, column offset)
+    column_of_row: dict  # name -> (count,) first column of each row, -1 when fixed
+    dims: dict  # name -> variables per row
+    size: int
+
+    @classmethod
+    def build(cls, values: Values, fixed: dict):
+        blocks, column_of_row, dims, offset = {}, {}, {}, 0
+        for name, value in values.items():
+            count, dim = value.shape
+            mask = np.ones(count, bool)
+            mask[np.asarray(fixed.get(name, []), int)] = False
+            rows = np.flatnonzero(mask)
+            cols = np.full(count, -1, int)
+            cols[rows] = offset + dim * np.arange(len(rows))
+            blocks[name] = (rows, offset)
+            column_of_row[name] = cols
+            dims[name] = dim
+            offset += dim * len(rows)
+        return cls(blocks, column_of_row, dims, offset)
+
+    def columns(self, name):
+        """All column indices of a block's free rows, in row-major order."""
+        rows, offset = self.blocks[name]
+        return offset + np.arange(len(rows) * self.dims[name])
+
+
+@dataclass
+class System:
+    """The whitened, robustly weighted linear system at one linearisation point."""
+
+    jacobian: sp.csr_matrix
+    residual: np.ndarray  # whitened and weighted
+    cost: float  # Σ ρ(s) over all edges (the robust cost)
+    per_factor: dict  # factor name -> dict(cost, chi2, count, dim, weights)
+    row_ranges: list  # (factor name, first row, end row) in stacking order
+
+
+@dataclass
+class SolverResult:
+    values: Values
+    iterations: int
+    converged: bool
+    initial_cost: float
+    final_cost: float
+    history: list = field(default_factory=list)
+    seconds: float = 0.0
+
+
+class Problem:
+    """Factors + initial values + which rows are fixed + a robust kernel per factor name."""
+
+    def __init__(self, values: Values, factors, fixed=None, kernels=None, scales=None):
+        self.values = values
+        self.factors = list(factors)
+        self.fixed = fixed or {}
+        self.kernels = kernels or {}
+        # Variance scale per factor name: the factor's covariance is multiplied by it
+        # (estimated from the residuals by variance component estimation).
+        self.scales = dict(scales or {})
+        self.layout = Layout.build(values, self.fixed)
+
+    def kernel(self, factor):
+        return self.kernels.get(factor.name, TrivialKernel())
+
+    def linear_system(self, values: Values) -> System:
+        rows_all, cols_all, data_all, residuals = [], [], [], []
+        total_cost, per_factor, row_ranges, row0 = 0.0, {}, [], 0
+        for factor in self.factors:
+            if len(factor) == 0:
+                continue
+            lin = factor.linearize(values)
+            scale = self.scales.get(factor.name, 1.0)
+            whitened = np.einsum("mij,mj->mi", lin.sqrt_information, lin.residual) / math.sqrt(scale)
+            squared = np.einsum("mi,mi->m", whitened, whitened)
+            kernel = self.kernel(factor)
+            weight = kernel.weight(squared)
+            sqrt_w = np.sqrt(weight)
+            cost = float(np.sum(kernel.rho(squared)))
+            total_cost += cost
+            stats = per_factor.setdefault(
+                factor.name, {"cost": 0.0, "chi2": 0.0, "count": 0, "dim": 0, "weights": []}
+            )
+            stats["cost"] += cost
+            stats["chi2"] += float(np.sum(weight * squared))
+            stats["count"] += len(factor)
+            stats["dim"] += len(factor) * lin.residual.shape[1]
+            stats["weights"].append(weight)
+            m, d = lin.residual.shape
+            residuals.append((whitened * sqrt_w[:, None]).ravel())
+            edge_rows = row0 + np.arange(m * d).reshape(m, d)
+            for jb in lin.blocks:
+                cols0 = self.layout.column_of_row[jb.block][jb.rows]  # (m,)
+                keep = cols0 >= 0
+                if not keep.any():
+                    continue
+                jac = np.einsum("mij,mjk->mik", lin.sqrt_information, jb.jacobian)
+                jac = jac * (sqrt_w / math.sqrt(scale))[:, None, None]
+                dim = jac.shape[2]
+                r = np.broadcast_to(edge_rows[:, :, None], (m, d, dim))[keep]
+                c = (cols0[:, None, None] + np.arange(dim)[None, None, :])
+                c = np.broadcast_to(c, (m, d, dim))[keep]
+                rows_all.append(r.ravel())
+                cols_all.append(c.ravel())
+                data_all.append(jac[keep].ravel())
+            row_ranges.append((factor.name, row0, row0 + m * d))
+            row0 += m * d
+        jacobian = sp.csr_matrix(
+            (np.concatenate(data_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
+            shape=(row0, self.layout.size),
+        )
+        return System(jacobian, np.concatenate(residuals), total_cost, per_factor, row_ranges)
+
+    def cost(self, values: Values) -> float:
+        total = 0.0
+        for factor in self.factors:
+            if len(factor) == 0:
+                continue
+            lin = factor.linearize(values)
+            scale = self.scales.get(factor.name, 1.0)
+            whitened = np.einsum("mij,mj->mi", lin.sqrt_information, lin.residual)
+            squared = np.einsum("mi,mi->m", whitened, whitened) / scale
+            total += float(np.sum(self.kernel(factor).rho(squared)))
+        return total
+
+
+def _normal_equations(system: System):
+    jac = system.jacobian
+    hessian = (jac.T @ jac).tocsc()
+    gradient = jac.T @ system.residual
+    return hessian, gradient
+
+
+def levenberg_marquardt(
+    problem: Problem,
+    max_iterations: int = 50,
+    relative_tolerance: float = 1e-10,
+    initial_lambda: float = 1e-5,
+    progress=None,
+) -> SolverResult:
+    """Minimise Σ ρ(‖L e‖²) with Marquardt's diagonal damping and an adaptive λ."""
+    start = time.perf_counter()
+    values = problem.values
+    system = problem.linear_system(values)
+    initial_cost = cost = system.cost
+    lam, history, converged = initial_lambda, [cost], False
+    iteration = 0
+    for iteration in range(1, max_iterations + 1):
+        hessian, gradient = _normal_equations(system)
+        diag = hessian.diagonal()
+        damping = sp.diags(lam * np.maximum(diag, 1e-9))
+        accepted = False
+        while lam < 1e10:
+            try:
+                delta = spla.spsolve((hessian + damping).tocsc(), -gradient)
+            except RuntimeError:  # singular despite damping: damp harder
+                delta = None
+            if delta is not None and np.all(np.isfinite(delta)):
+                candidate = values.retract(problem.layout, delta)
+                new_cost = problem.cost(candidate)
+                if new_cost < cost:
+                    accepted = True
+                    break
+            lam *= 10.0
+            damping = sp.diags(lam * np.maximum(diag, 1e-9))
+        if not accepted:
+            converged = True  # no descent direction left at any damping: a minimum
+            break
+        improvement = (cost - new_cost) / max(cost, 1e-300)
+        values, cost = candidate, new_cost
+        lam = max(lam / 10.0, 1e-12)
+        history.append(cost)
+        if progress is not None:
+            progress(iteration, cost)
+        system = problem.linear_system(values)
+        if improvement < relative_tolerance:
+            converged = True
+            break
+    return SolverResult(
+        values, iteration, converged, initial_cost, cost, history, time.perf_counter() - start
+    )
+
+
+def factorize_information(problem: Problem, values: Values):
+    """Sparse LU of the (robustly weighted) information matrix H = JᵀJ at `values`."""
+    system = problem.linear_system(values)
+    hessian, _ = _normal_equations(system)
+    return system, hessian, spla.splu(hessian)
+
+
+def marginal_covariance(problem: Problem, values: Values, blocks, lu=None):
+    """Joint marginal covariance of the named blocks' free variables, (p, p).
+
+    The marginal of a Gaussian is the corresponding block of H⁻¹: solve H X = E for the p
+    unit columns E of those variables with one factorisation.
+    """
+    if lu is None:
+        _, _, lu = factorize_information(problem, values)
+    cols = np.concatenate([problem.layout.columns(name) for name in blocks])
+    unit = np.zeros((problem.layout.size, len(cols)))
+    unit[cols, np.arange(len(cols))] = 1.0
+    solved = lu.solve(unit)
+    cov = solved[cols]
+    return 0.5 * (cov + cov.T)
+
+
+def redundancy_by_factor(problem: Problem, values: Values, probes: int = 40, seed: int = 0):
+    """Redundancy (observations minus the share of parameters each factor type determines).
+
+    For variance component estimation: the expected χ² of factor group g at the optimum
+    is r_g = n_g − tr(H⁻¹ H_g). The traces are estimated with Hutchinson's estimator
+    (Rademacher probes through one sparse LU), exact in expectation; 40 probes estimate a
+    trace of ~10⁴ to about 1 %.
+    """
+    system, hessian, lu = factorize_information(problem, values)
+    rng = np.random.default_rng(seed)
+    probe = rng.choice([-1.0, 1.0], size=(problem.layout.size, probes))
+    solved = lu.solve(probe)  # H⁻¹ v
+    # H_g = J_gᵀ J_g; vᵀ H⁻¹ H_g v = (J_g H⁻¹ v)ᵀ (J_g v).
+    jac = system.jacobian
+    traces = {}
+    for name, start, stop in system.row_ranges:
+        jg = jac[start:stop]
+        traces[name] = traces.get(name, 0.0) + float(
+            np.mean(np.sum((jg @ solved) * (jg @ probe), axis=0))
+        )
+    out = {
+        name: (stats["dim"] - traces[name], stats["chi2"])
+        for name, stats in system.per_factor.items()
+    }
+    return out, lu
+
+
+def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance: float = 0.02,
+                                   progress=None, **lm_options):
+    """LM, then iterated variance component estimation (Förstner / Helmert type).
+
+    Each factor type's stated covariance is only a model shape; its overall scale is
+    estimated from the data as σ̂²_g = χ²_g / r_g, with r_g the group's redundancy. The
+    groups are re-weighted and the problem re-solved until the factors settle (a fixed
+    point where every group's χ² matches its redundancy). Returns the final result and the
+    variance scales, which `problem.scales` also holds afterwards.
+    """
+    result = levenberg_marquardt(problem, progress=progress, **lm_options)
+    for _ in range(rounds):
+        redundancy, _ = redundancy_by_factor(problem, result.values)
+        factors_changed = False
+        for name, (r, chi2) in redundancy.items():
+            if r < 3:  # a group that determines its own variables has no say on its noise
+                continue
+            ratio = chi2 / r
+            problem.scales[name] = problem.scales.get(name, 1.0) * ratio
+            factors_changed |= abs(ratio - 1.0) > tolerance
+        if not factors_changed:
+            break
+        problem.values = result.values
+        result = levenberg_marquardt(problem, progress=progress, **lm_options)
+    problem.values = result.values
+    return result, dict(problem.scales)

@@ -1,0 +1,98 @@
+import numpy as np
+import pytest
+from synthetic import make_graph
+
+from sclam_ros import factors, kinematics, se2
+from sclam_ros.solver import (
+    CauchyKernel,
+    Problem,
+    Values,
+    levenberg_marquardt,
+    marginal_covariance,
+    redundancy_by_factor,
+    solve_with_variance_components,
+)
+
+NOMINAL_K = np.array([0.125, 0.125, 0.56])
+NOMINAL_L = np.array([0.22, 0.0, 0.0])
+
+
+def build_problem(g, k0=NOMINAL_K, l0=NOMINAL_L, laser_scale=1.0, kernels=None):
+    n = len(g["poses"])
+    poses = np.zeros((n, 3))
+    for i, d in enumerate(g["dphi"]):  # initial guess: nominal dead reckoning
+        poses[i + 1] = se2.compose(poses[i], kinematics.forward(d, k0))
+    cov_odo = kinematics.motion_covariance(g["dphi"], k0, g["wheel_noise"], floor=1e-10)
+    info_laser = np.diag(1 / (laser_scale * g["laser_sigma"]) ** 2)
+    values = Values(
+        {"poses": poses, "odometry": [k0], "laser": [l0]},
+        angular={"poses": [0, 0, 1], "laser": [0, 0, 1]},
+    )
+    idx = np.arange(n - 1)
+    odo = factors.OdometryFactor(idx, idx + 1, g["dphi"], np.linalg.inv(cov_odo))
+    las = factors.LaserFactor(idx, idx + 1, g["z"], np.tile(info_laser, (n - 1, 1, 1)))
+    return Problem(values, [odo, las], fixed={"poses": [0]}, kernels=kernels or {})
+
+
+def calibration(values):
+    return np.concatenate([values["odometry"][0], values["laser"][0]])
+
+
+def test_recovers_truth_within_reported_sigma():
+    g = make_graph(seed=1)
+    problem = build_problem(g)
+    result = levenberg_marquardt(problem)
+    assert result.converged
+    est = calibration(result.values)
+    cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+    sigma = np.sqrt(np.diag(cov))
+    truth = np.concatenate([g["k"], g["l"]])
+    assert np.all(np.abs(est - truth) < 4 * sigma), (est - truth) / sigma
+    # And the estimate moved from the nominal start toward the truth.
+    assert abs(est[2] - g["k"][2]) < 0.25 * abs(NOMINAL_K[2] - g["k"][2])
+
+
+def test_normalised_errors_have_unit_rms_over_seeds():
+    """The reported covariance is honest when the noise model is right: RMS(err/σ) ≈ 1."""
+    z = []
+    for seed in range(12):
+        g = make_graph(n=300, seed=100 + seed)
+        problem = build_problem(g)
+        result = levenberg_marquardt(problem)
+        cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+        z.append((calibration(result.values) - np.concatenate([g["k"], g["l"]])) / np.sqrt(np.diag(cov)))
+    rms = np.sqrt(np.mean(np.square(z)))
+    assert 0.7 < rms < 1.35, rms
+
+
+def test_variance_components_recover_a_misstated_noise_scale():
+    """Laser noise stated 3x too small: the iterated variance factor converges to ≈ 9.
+
+    Tolerance: with ~700 redundant laser residual components the variance estimate has
+    a relative standard error of sqrt(2/700) ≈ 5 %; 25 % is five of those.
+    """
+    g = make_graph(n=400, seed=5)
+    problem = build_problem(g, laser_scale=1 / 3)
+    _, scales = solve_with_variance_components(problem)
+    assert scales["laser"] == pytest.approx(9.0, rel=0.25)
+    assert scales["odometry"] == pytest.approx(1.0, rel=0.25)
+    redundancy, _ = redundancy_by_factor(problem, problem.values)
+    for name, (r, chi2) in redundancy.items():
+        assert chi2 / r == pytest.approx(1.0, rel=0.05), name
+
+
+def test_robust_kernel_resists_outlier_matches():
+    g = make_graph(n=400, seed=7)
+    bad = np.random.default_rng(0).choice(len(g["z"]), 20, replace=False)
+    g["z"][bad] += np.array([0.3, -0.2, 0.2])  # gross scan-matching failures
+    plain = levenberg_marquardt(build_problem(g))
+    robust = levenberg_marquardt(build_problem(g, kernels={"laser": CauchyKernel(3.0)}))
+    truth = np.concatenate([g["k"], g["l"]])
+    err_plain = np.abs(calibration(plain.values) - truth)
+    err_robust = np.abs(calibration(robust.values) - truth)
+    assert err_robust[2] < 0.1 * err_plain[2]
+    clean = make_graph(n=400, seed=7)
+    cov = marginal_covariance(build_problem(clean), levenberg_marquardt(build_problem(clean)).values,
+                              ["odometry", "laser"])
+    # 5 % of the edges corrupted cost the robust fit little: within 3σ of the clean fit's σ.
+    assert np.all(err_robust < 3 * np.sqrt(np.diag(cov)))
