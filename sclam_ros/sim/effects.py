@@ -1,0 +1,199 @@
+"""Un-modelled effects the simulator can switch on, all listed in ``EFFECTS``.
+
+Each effect overrides one or more hooks; an ``EffectSet`` chains them. The hooks are
+the seams of the simulated truth:
+
+- ``radii(t, r_left, r_right)``   true wheel radii over time (wear, load, a step change)
+- ``body_twist(t, v, w)``         true body twist (vx, vy, ω) for a commanded (v, ω):
+                                  how the ground answers to the wheels (lateral slip)
+- ``encoder_stamp(t)``            header stamp of an encoder sample taken at true time t
+- ``scan_time_increment(scan_rate, beams)``  seconds between two beams of one scan
+                                  (0: the whole scan is taken at its stamp)
+
+With no effect every hook is the identity and the encoders agree with the TRUE
+kinematics up to the slip noise and the tick quantisation.
+
+Adding an effect: subclass ``Effect``, set ``name``, ``params`` (ordered parameter
+names with defaults and units) and ``doc``, override the hooks it needs, and add it to
+``EFFECTS``. ``sclam simulate --effect NAME=V1[,V2...]`` (positional, in ``params``
+order) or ``--effect NAME=key:value,key:value`` reaches it with no other change.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class Effect:
+    name = ""
+    doc = ""
+    # (parameter, default, unit); the first one is what ``NAME=VALUE`` sets.
+    params: tuple[tuple[str, float, str], ...] = ()
+
+    def __init__(self, **values):
+        unknown = set(values) - {p for p, _, _ in self.params}
+        if unknown:
+            raise ValueError(
+                f"effect {self.name}: unknown parameter(s) {sorted(unknown)}; "
+                f"known: {[p for p, _, _ in self.params]}"
+            )
+        for param, default, _ in self.params:
+            setattr(self, param, float(values.get(param, default)))
+
+    def describe(self) -> dict:
+        """Parameters as recorded in truth.json."""
+        return {param: getattr(self, param) for param, _, _ in self.params}
+
+    # hooks: identity unless overridden ------------------------------------------------
+    def radii(self, t, r_left, r_right):
+        return r_left, r_right
+
+    def body_twist(self, t, v, w):
+        return v, 0.0 * v, w
+
+    def encoder_stamp(self, t):
+        return t
+
+    def scan_time_increment(self, scan_rate: float, beams: int) -> float:
+        return 0.0
+
+
+class TimeOffset(Effect):
+    name = "time_offset"
+    doc = "encoder header stamps = true sampling time + offset (laser stamps stay true)"
+    params = (("offset", 0.02, "s"),)
+
+    def encoder_stamp(self, t):
+        return t + self.offset
+
+
+class RadiusChangeAt(Effect):
+    name = "radius_change_at"
+    doc = (
+        "step change of both true wheel radii at a time since the start, as fractions "
+        "(e.g. a tyre losing pressure, a load put on the robot)"
+    )
+    params = (("time", 150.0, "s"), ("left", -0.01, "fraction"), ("right", -0.0033, "fraction"))
+
+    def radii(self, t, r_left, r_right):
+        after = np.asarray(t) >= self.time
+        return (
+            r_left * np.where(after, 1.0 + self.left, 1.0),
+            r_right * np.where(after, 1.0 + self.right, 1.0),
+        )
+
+
+class RadiusDrift(Effect):
+    name = "radius_drift"
+    doc = "linear drift of the true wheel radii over time (tyre wear, warming up)"
+    params = (("left", -0.01, "fraction/hour"), ("right", 0.0, "fraction/hour"))
+
+    def radii(self, t, r_left, r_right):
+        hours = np.asarray(t) / 3600.0
+        return r_left * (1.0 + self.left * hours), r_right * (1.0 + self.right * hours)
+
+
+class LateralSlip(Effect):
+    name = "lateral_slip"
+    doc = (
+        "the body skids outwards in turns: vy = -gain·v·ω, unseen by the wheels "
+        "(gain in s; 0.05 gives 2.5 cm/s at 0.5 m/s and 1 rad/s)"
+    )
+    params = (("gain", 0.05, "s"),)
+
+    def body_twist(self, t, v, w):
+        return v, -self.gain * v * w, w
+
+
+class ScanMotion(Effect):
+    name = "scan_motion"
+    doc = (
+        "the laser sweeps its beams over the scan period instead of all at the stamp, "
+        "so a moving robot sees a distorted scan; time_increment is written to the "
+        "LaserScan as a real driver does"
+    )
+    params = (("fraction", 1.0, "of the scan period"),)
+
+    def scan_time_increment(self, scan_rate, beams):
+        return self.fraction / scan_rate / beams
+
+
+EFFECTS: dict[str, type[Effect]] = {
+    cls.name: cls for cls in (TimeOffset, RadiusChangeAt, RadiusDrift, LateralSlip, ScanMotion)
+}
+
+
+def make_effect(name: str, value=None) -> Effect:
+    """An effect from its name and a value: None (defaults), a number (the first
+    parameter), a sequence (positional), a dict, or a CLI string ``V1,V2`` /
+    ``key:value,key:value``."""
+    if name not in EFFECTS:
+        raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(EFFECTS))}")
+    cls = EFFECTS[name]
+    names = [p for p, _, _ in cls.params]
+    if value is None:
+        return cls()
+    if isinstance(value, dict):
+        return cls(**value)
+    if isinstance(value, str):
+        items = [item.strip() for item in value.split(",") if item.strip()]
+        if all(":" in item for item in items):
+            return cls(**{k.strip(): float(v) for k, v in (item.split(":", 1) for item in items)})
+        value = [float(item) for item in items]
+    if np.ndim(value) == 0:
+        value = [value]
+    if len(value) > len(names):
+        raise ValueError(f"effect {name} takes at most {len(names)} values ({', '.join(names)})")
+    return cls(**dict(zip(names, (float(v) for v in value))))
+
+
+@dataclass
+class EffectSet:
+    """The effects of one simulation, chained in the given order."""
+
+    effects: tuple[Effect, ...] = ()
+
+    @classmethod
+    def from_spec(cls, spec) -> "EffectSet":
+        """From None, a dict name -> value, or a list of names / (name, value) / Effect."""
+        if spec is None:
+            return cls()
+        if isinstance(spec, EffectSet):
+            return spec
+        items = spec.items() if isinstance(spec, dict) else spec
+        effects = []
+        for item in items:
+            if isinstance(item, Effect):
+                effects.append(item)
+            elif isinstance(item, str):
+                effects.append(make_effect(item))
+            else:
+                effects.append(make_effect(*item))
+        names = [e.name for e in effects]
+        if len(set(names)) != len(names):
+            raise ValueError(f"effect given twice: {names}")
+        return cls(tuple(effects))
+
+    def describe(self) -> dict:
+        return {e.name: e.describe() for e in self.effects}
+
+    def radii(self, t, r_left, r_right):
+        for effect in self.effects:
+            r_left, r_right = effect.radii(t, r_left, r_right)
+        return r_left, r_right
+
+    def body_twist(self, t, v, w):
+        vy_total = 0.0
+        for effect in self.effects:
+            v, vy, w = effect.body_twist(t, v, w)
+            vy_total = vy_total + vy
+        return v, vy_total, w
+
+    def encoder_stamp(self, t):
+        for effect in self.effects:
+            t = effect.encoder_stamp(t)
+        return t
+
+    def scan_time_increment(self, scan_rate, beams) -> float:
+        return sum(e.scan_time_increment(scan_rate, beams) for e in self.effects)

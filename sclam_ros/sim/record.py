@@ -1,0 +1,174 @@
+"""``simulate()``: drive a simulated robot and record a rosbag2 with ground truth.
+
+Output layout: ``out`` IS the rosbag2 folder (metadata.yaml + one .db3 or .mcap), with
+two extra files beside them that rosbag2 readers ignore:
+
+- ``params.yaml``: ROS 2 parameters for node ``sclam`` with the NOMINAL calibration,
+  topics, joint names and ticks per revolution, so
+  ``sclam calibrate OUT --params OUT/params.yaml`` runs as is;
+- ``truth.json``: the TRUE calibration (same key names), robot, seed, duration, the
+  effects applied with their parameters, and the recording's start time.
+
+Topics: ``/joint_states`` (sensor_msgs/JointState, cumulative ticks),
+``/scan`` (sensor_msgs/LaserScan, frame "laser"), ``/ground_truth/odom``
+(nav_msgs/Odometry odom → base_link at the encoder rate, true time stamps; the
+odom frame is the robot's start pose, whose world pose truth.json gives as
+``odom_origin_in_world``).
+Record time = header stamp for every message.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from sclam_ros import se2
+from sclam_ros.bag import BagError, BagWriter
+from sclam_ros.params import SclamParams, atomic_write_text
+from sclam_ros.sim.effects import EffectSet
+from sclam_ros.sim.motion import TrueKinematics
+from sclam_ros.sim.robots import get_preset, true_calibration
+from sclam_ros.sim.sensors import DEFAULT_SLIP_NOISE, LaserModel, encoder_samples, laser_scans
+from sclam_ros.sim.trajectory import simulate_trajectory
+from sclam_ros.sim.world import office_world
+
+START_TIME = 1_700_000_000.0  # s, epoch of t = 0: stamps look like a real recording's
+JOINT_STATES_TOPIC = "/joint_states"
+SCAN_TOPIC = "/scan"
+GROUND_TRUTH_TOPIC = "/ground_truth/odom"
+JOINT_NAMES = ("left_wheel_joint", "right_wheel_joint")
+CONTROL_RATE = 50.0  # Hz, the simulated controller's update rate
+# Scans start a little after the encoders so the two streams never share stamps and the
+# sync has to interpolate, as on a real robot.
+SCAN_PHASE = 0.013  # s
+
+
+def _progress_printer(progress):
+    if progress is None:
+        return lambda message: None
+    return progress
+
+
+def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None, storage="sqlite3",
+             scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
+             progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False) -> dict:
+    """Simulate ``duration`` s of ``robot`` driving through the office world into ``out``.
+
+    Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
+    ``effects``: dict name -> value (see ``sclam_ros.sim.effects.EFFECTS``).
+    ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
+    """
+    report = _progress_printer(progress)
+    out = Path(out)
+    if out.exists():
+        if not overwrite:
+            raise BagError(f"{out} exists already; remove it or choose another output folder")
+        shutil.rmtree(out)
+    if duration <= 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    preset = get_preset(robot)
+    truth = true_calibration(preset, true_overrides)
+    effect_set = EffectSet.from_spec(effects)
+    kinematics = TrueKinematics(
+        truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"], effect_set
+    )
+    mount = np.array([truth["laser_x"], truth["laser_y"], truth["laser_yaw"]])
+    world = office_world()
+    # Independent streams per purpose: changing the laser model does not change the route.
+    route_seed, encoder_rng, laser_rng = np.random.SeedSequence(seed).spawn(3)
+
+    report(f"planning and driving {duration:.0f} s of trajectory ({preset.name}, seed {seed})")
+    trajectory = simulate_trajectory(
+        world, kinematics, duration, int(route_seed.generate_state(1)[0]), preset.footprint_radius,
+        CONTROL_RATE,
+    )
+    encoders = encoder_samples(
+        trajectory, kinematics, encoder_rate, preset.ticks_per_revolution,
+        np.random.default_rng(encoder_rng), slip_noise,
+    )
+    model = LaserModel(beams=beams, range_noise=range_noise)
+    time_increment = effect_set.scan_time_increment(scan_rate, beams)
+    scan_times = SCAN_PHASE + np.arange(
+        int(np.floor((duration - SCAN_PHASE - time_increment * beams) * scan_rate)) + 1
+    ) / scan_rate
+
+    def scan_progress(done, total):
+        if done == total or done % 2000 < 200:
+            report(f"ray casting scans {done}/{total}")
+
+    scans = laser_scans(
+        world, trajectory, mount, scan_times, model, np.random.default_rng(laser_rng),
+        time_increment, START_TIME, progress=scan_progress,
+    )
+
+    report(f"writing {storage} bag {out}")
+    _write_bag(out, storage, trajectory, encoders, scans, effect_set)
+
+    params = SclamParams(
+        joint_states_topic=JOINT_STATES_TOPIC,
+        scan_topic=SCAN_TOPIC,
+        left_wheel_joint=JOINT_NAMES[0],
+        right_wheel_joint=JOINT_NAMES[1],
+        ticks_per_revolution=float(preset.ticks_per_revolution),
+        **preset.nominal,
+    ).validate()
+    params.write_yaml(
+        out / "params.yaml",
+        header=f"# Nominal parameters of the simulated {preset.name} (sclam simulate, seed {seed}).\n"
+        "# The true values are in truth.json beside this file.\n",
+    )
+    truth_doc = {
+        **truth,
+        "robot": preset.name,
+        "seed": int(seed),
+        "duration": float(duration),
+        "start_time": START_TIME,
+        "effects": effect_set.describe(),
+        "nominal": dict(preset.nominal),
+        "ticks_per_revolution": float(preset.ticks_per_revolution),
+        "storage": storage,
+        "sensors": {
+            "encoder_rate": float(encoder_rate),
+            "scan_rate": float(scan_rate),
+            "beams": int(beams),
+            "range_noise": float(range_noise),
+            "range_max": model.range_max,
+            "slip_noise": float(slip_noise),
+            "control_rate": CONTROL_RATE,
+        },
+        "topics": {
+            "joint_states": JOINT_STATES_TOPIC,
+            "scan": SCAN_TOPIC,
+            "ground_truth": GROUND_TRUTH_TOPIC,
+        },
+        "odom_origin_in_world": [float(v) for v in trajectory.pose_at(0.0)],
+        "path_length": float(np.abs(trajectory.twists[:, 0]).sum() * trajectory.dt),
+        "rotation_total": float(np.abs(trajectory.twists[:, 2]).sum() * trajectory.dt),
+    }
+    atomic_write_text(out / "truth.json", json.dumps(truth_doc, indent=2) + "\n")
+    report(f"done: {out}")
+    return truth_doc
+
+
+def _write_bag(out, storage, trajectory, encoders, scans, effect_set: EffectSet) -> None:
+    """All messages in record-time order (= header stamp order)."""
+    encoder_stamps = START_TIME + effect_set.encoder_stamp(encoders.times)
+    truth_stamps = START_TIME + encoders.times
+    # REP-105: the odom frame is where the robot started, so the truth starts at identity.
+    truth_poses = se2.between(trajectory.pose_at(encoders.times), trajectory.pose_at(0.0))
+    truth_twists = trajectory.twist_at(encoders.times)
+    # (record time, kind, index); kind orders simultaneous messages deterministically.
+    events = [(t, 0, i) for i, t in enumerate(encoder_stamps)]
+    events += [(t, 1, i) for i, t in enumerate(truth_stamps)]
+    events += [(scan.stamp, 2, i) for i, scan in enumerate(scans)]
+    events.sort()
+    with BagWriter(out, storage) as bag:
+        for stamp, kind, i in events:
+            if kind == 0:
+                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, JOINT_NAMES, encoders.ticks[i])
+            elif kind == 1:
+                bag.write_odometry(GROUND_TRUTH_TOPIC, stamp, truth_poses[i], truth_twists[i])
+            else:
+                bag.write_scan(SCAN_TOPIC, scans[i])

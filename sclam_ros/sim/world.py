@@ -1,0 +1,198 @@
+"""The simulated indoor world: walls as line segments, ray casting, clearance.
+
+The floor plan is an office floor (30 m × 16 m): a corridor with five rooms on both
+sides, doors between them, an open hall with pillars, and furniture along the walls so
+that every scan has corners to match. Beside the walls it carries a roadmap (nodes in
+free space and straight, collision-free edges between them) that the trajectory
+generator walks; ``test_sim`` checks every edge against the walls.
+
+Everything is vectorised over rays × segments because the laser model casts a few
+million rays for a 20-minute recording.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+def _polyline(*points) -> list[tuple[float, float, float, float]]:
+    return [(*points[i], *points[i + 1]) for i in range(len(points) - 1)]
+
+
+def _wall_with_doors(start, end, doors, width) -> list[tuple[float, float, float, float]]:
+    """An axis-aligned wall from ``start`` to ``end`` with door gaps centred at ``doors``
+    (coordinates along the wall's varying axis)."""
+    (x0, y0), (x1, y1) = start, end
+    horizontal = y0 == y1
+    lo, hi = (x0, x1) if horizontal else (y0, y1)
+    cuts = [lo]
+    for centre in sorted(doors):
+        cuts += [centre - width / 2, centre + width / 2]
+    cuts.append(hi)
+    segments = []
+    for a, b in zip(cuts[0::2], cuts[1::2]):
+        if b > a:
+            segments.append((a, y0, b, y0) if horizontal else (x0, a, x0, b))
+    return segments
+
+
+def _box(cx, cy, w, h) -> list[tuple[float, float, float, float]]:
+    """Closed rectangle (furniture, pillars) centred at (cx, cy)."""
+    x0, x1, y0, y1 = cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2
+    return _polyline((x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0))
+
+
+@dataclass
+class World:
+    """Walls (S, 4) as x1, y1, x2, y2 and a roadmap through the free space."""
+
+    segments: np.ndarray
+    nodes: dict[str, tuple[float, float]] = field(default_factory=dict)
+    edges: list[tuple[str, str]] = field(default_factory=list)
+    # Nodes in open areas where loops, figure-eights and spins fit.
+    open_nodes: tuple[str, ...] = ()
+    bounds: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # xmin, ymin, xmax, ymax
+
+    def neighbours(self, node: str) -> list[str]:
+        out = [b for a, b in self.edges if a == node] + [a for a, b in self.edges if b == node]
+        return sorted(out)
+
+    def raycast(self, pose_xyth, angles, max_range: float) -> np.ndarray:
+        """Ranges of beams at ``angles`` (in the frame of ``pose_xyth``) from that pose."""
+        pose = np.asarray(pose_xyth, float)
+        angles = np.asarray(angles, float)
+        origins = np.broadcast_to(pose[:2], angles.shape + (2,))
+        return cast_rays(self.segments, origins, pose[2] + angles, max_range)
+
+    def clearance(self, points) -> np.ndarray:
+        """Distance of each point (N, 2) to the nearest wall."""
+        return distance_to_segments(self.segments, points)
+
+    def inside_bounds(self, points) -> np.ndarray:
+        p = np.atleast_2d(points)
+        xmin, ymin, xmax, ymax = self.bounds
+        return (p[:, 0] > xmin) & (p[:, 0] < xmax) & (p[:, 1] > ymin) & (p[:, 1] < ymax)
+
+
+def cast_rays(segments, origins, directions, max_range: float, chunk: int = 4096) -> np.ndarray:
+    """Range of each ray to the first wall it hits; ``inf`` beyond ``max_range`` or no hit.
+
+    segments (S, 4); origins (R, 2); directions (R,) world angles. Solves
+    p + t·d = a + u·(b − a) for every ray/segment pair at once: t is the range and
+    0 ≤ u ≤ 1 says the hit lies on the segment.
+    """
+    segments = np.asarray(segments, float)
+    origins = np.asarray(origins, float).reshape(-1, 2)
+    directions = np.asarray(directions, float).reshape(-1)
+    ax, ay = segments[:, 0], segments[:, 1]
+    ex, ey = segments[:, 2] - ax, segments[:, 3] - ay
+    out = np.empty(len(directions))
+    for start in range(0, len(directions), chunk):
+        stop = start + chunk
+        dx = np.cos(directions[start:stop])[:, None]
+        dy = np.sin(directions[start:stop])[:, None]
+        apx = ax[None, :] - origins[start:stop, 0:1]
+        apy = ay[None, :] - origins[start:stop, 1:2]
+        denom = dx * ey - dy * ex
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (apx * ey - apy * ex) / denom
+            u = (apx * dy - apy * dx) / denom
+        # Parallel rays (denom 0) give inf/nan and fail these comparisons: no hit.
+        hit = (t > 0.0) & (u >= 0.0) & (u <= 1.0)
+        out[start:stop] = np.where(hit, t, np.inf).min(axis=1)
+    out[out > max_range] = np.inf
+    return out
+
+
+def distance_to_segments(segments, points) -> np.ndarray:
+    """Euclidean distance of each point (N, 2) to the nearest of the segments (S, 4)."""
+    segments = np.asarray(segments, float)
+    p = np.atleast_2d(np.asarray(points, float))
+    a = segments[None, :, :2]
+    e = segments[None, :, 2:] - segments[None, :, :2]
+    ap = p[:, None, :] - a
+    u = np.clip((ap * e).sum(-1) / (e * e).sum(-1), 0.0, 1.0)
+    closest = a + u[..., None] * e
+    return np.sqrt(((p[:, None, :] - closest) ** 2).sum(-1)).min(axis=1)
+
+
+def office_world() -> World:
+    """The default floor plan (see the module docstring); coordinates in metres."""
+    door = 1.6  # m, wide enough for the largest preset robot with margin
+    walls = []
+    walls += _polyline((0, 0), (30, 0), (30, 16), (0, 16), (0, 0))
+    # Corridor y ∈ [6.5, 9] from x = 0 to the hall at x = 22.
+    walls += _wall_with_doors((0, 6.5), (22, 6.5), [3.5, 10.5, 18.0], door)
+    walls += _wall_with_doors((0, 9.0), (22, 9.0), [5.0, 16.0], door)
+    # Room dividers and the wall between the rooms and the hall.
+    walls += _polyline((7, 0), (7, 6.5))
+    walls += _polyline((14, 0), (14, 6.5))
+    walls += _wall_with_doors((11, 9), (11, 16), [12.5], door)
+    walls += _wall_with_doors((22, 0), (22, 6.5), [3.25], door)
+    walls += _wall_with_doors((22, 9), (22, 16), [12.5], door)
+    # Furniture along the walls (cabinets, desks) and pillars in the hall: corners for
+    # the scan matcher, kept off the roadmap.
+    walls += _box(0.9, 0.6, 1.2, 0.6)
+    walls += _box(6.2, 5.4, 0.8, 1.6)
+    walls += _box(8.0, 0.5, 1.6, 0.6)
+    walls += _box(13.3, 4.8, 0.8, 1.2)
+    walls += _box(15.0, 0.6, 1.2, 0.8)
+    walls += _box(21.3, 5.6, 0.8, 1.0)
+    walls += _box(1.0, 15.3, 1.4, 0.8)
+    walls += _box(9.2, 15.4, 2.0, 0.6)
+    walls += _box(12.2, 10.0, 1.0, 1.0)
+    walls += _box(20.4, 15.3, 1.6, 0.8)
+    walls += _box(28.5, 5.5, 0.5, 0.5)
+    walls += _box(28.5, 10.0, 0.5, 0.5)
+    walls += _box(24.0, 1.2, 0.5, 0.5)
+    walls += _box(24.0, 14.8, 0.5, 0.5)
+    walls += _box(29.2, 15.2, 1.0, 1.0)
+    corridor_y, south_y, north_y, hall_x = 7.75, 3.25, 12.5, 26.0
+    nodes = {
+        "corridor_west": (1.5, corridor_y),
+        "corridor_s1": (3.5, corridor_y),
+        "corridor_n1": (5.0, corridor_y),
+        "corridor_s2": (10.5, corridor_y),
+        "corridor_n2": (16.0, corridor_y),
+        "corridor_s3": (18.0, corridor_y),
+        "corridor_east": (20.5, corridor_y),
+        "room_s1": (3.5, south_y),
+        "room_s2": (10.5, south_y),
+        "room_s3": (18.0, south_y),
+        "room_n1": (5.0, north_y),
+        "room_n2": (16.0, north_y),
+        "hall_south": (hall_x, south_y),
+        "hall_centre": (hall_x, corridor_y),
+        "hall_north": (hall_x, north_y),
+    }
+    edges = [
+        ("corridor_west", "corridor_s1"),
+        ("corridor_s1", "corridor_n1"),
+        ("corridor_n1", "corridor_s2"),
+        ("corridor_s2", "corridor_n2"),
+        ("corridor_n2", "corridor_s3"),
+        ("corridor_s3", "corridor_east"),
+        ("corridor_east", "hall_centre"),
+        ("corridor_s1", "room_s1"),
+        ("corridor_s2", "room_s2"),
+        ("corridor_s3", "room_s3"),
+        ("corridor_n1", "room_n1"),
+        ("corridor_n2", "room_n2"),
+        ("room_n1", "room_n2"),
+        ("room_n2", "hall_north"),
+        ("room_s3", "hall_south"),
+        ("hall_south", "hall_centre"),
+        ("hall_centre", "hall_north"),
+    ]
+    open_nodes = (
+        "room_s1",
+        "room_s2",
+        "room_s3",
+        "room_n1",
+        "room_n2",
+        "hall_south",
+        "hall_centre",
+        "hall_north",
+    )
+    return World(np.array(walls, float), nodes, edges, open_nodes, (0.0, 0.0, 30.0, 16.0))
