@@ -45,6 +45,9 @@ class Effect:
         """Parameters as recorded in truth.json."""
         return {param: getattr(self, param) for param, _, _ in self.params}
 
+    def for_duration(self, duration: float) -> None:
+        """Resolve defaults that depend on the recording's length; reject impossible values."""
+
     # hooks: identity unless overridden ------------------------------------------------
     def radii(self, t, r_left, r_right):
         return r_left, r_right
@@ -72,9 +75,15 @@ class RadiusChangeAt(Effect):
     name = "radius_change_at"
     doc = (
         "step change of both true wheel radii at a time since the start, as fractions "
-        "(e.g. a tyre losing pressure, a load put on the robot)"
+        "(e.g. a tyre losing pressure, a load put on the robot); time defaults to mid-run"
     )
-    params = (("time", 150.0, "s"), ("left", -0.01, "fraction"), ("right", -0.0033, "fraction"))
+    params = (("time", float("nan"), "s"), ("left", -0.01, "fraction"), ("right", -0.0033, "fraction"))
+
+    def for_duration(self, duration):
+        if np.isnan(self.time):
+            self.time = duration / 2.0
+        if not 0.0 < self.time < duration:
+            raise ValueError(f"radius_change_at: time {self.time} s is not inside the run (0, {duration}) s")
 
     def radii(self, t, r_left, r_right):
         after = np.asarray(t) >= self.time
@@ -177,6 +186,11 @@ class EffectSet:
 
     def describe(self) -> dict:
         return {e.name: e.describe() for e in self.effects}
+
+    def for_duration(self, duration: float) -> "EffectSet":
+        for effect in self.effects:
+            effect.for_duration(duration)
+        return self
 
     def radii(self, t, r_left, r_right):
         for effect in self.effects:

@@ -70,7 +70,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         raise ValueError(f"duration must be > 0 s, got {duration}")
     preset = get_preset(robot)
     truth = true_calibration(preset, true_overrides)
-    effect_set = EffectSet.from_spec(effects)
+    effect_set = EffectSet.from_spec(effects).for_duration(duration)
     kinematics = TrueKinematics(
         truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"], effect_set
     )
