@@ -195,7 +195,10 @@ class BagWriter:
             raise BagError(f"storage must be one of {sorted(plugins)}, got {storage!r}")
         self.path = Path(path)
         self.storage = storage
-        self._writer = Writer(self.path, version=ROSBAG2_VERSION, storage_plugin=plugins[storage])
+        try:
+            self._writer = Writer(self.path, version=ROSBAG2_VERSION, storage_plugin=plugins[storage])
+        except WriterError as exc:
+            raise BagError(str(exc)) from None
         self._connections: dict[str, object] = {}
 
     # context manager ------------------------------------------------------------------
