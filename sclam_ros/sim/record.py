@@ -45,12 +45,6 @@ CONTROL_RATE = 50.0  # Hz, the simulated controller's update rate
 SCAN_PHASE = 0.013  # s
 
 
-def _progress_printer(progress):
-    if progress is None:
-        return lambda message: None
-    return progress
-
-
 def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None, storage="sqlite3",
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
              progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False) -> dict:
@@ -60,7 +54,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     ``effects``: dict name -> value (see ``sclam_ros.sim.effects.EFFECTS``).
     ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
     """
-    report = _progress_printer(progress)
+    report = progress or (lambda message: None)
     out = Path(out)
     if out.exists():
         if not overwrite:

@@ -89,8 +89,9 @@ def _fits(world: World, points, margin: float) -> bool:
 
 
 def plan_route(world: World, rng: np.random.Generator, length: float, robot_radius: float,
-               limits: Limits = Limits(), start: str = "corridor_west") -> list[Run]:
+               limits: Limits | None = None, start: str = "corridor_west") -> list[Run]:
     """Runs covering at least ``length`` metres of path, starting at node ``start``."""
+    limits = limits or Limits()
     # Manoeuvres must keep a tracking margin on top of the robot's radius.
     margin = robot_radius + 0.3
     runs: list[Run] = []
@@ -255,14 +256,15 @@ class _Controller:
 
     def _arrived(self):
         end_distance = float(np.hypot(*(self.points[-1] - self.pose[:2])))
-        return self.progress >= len(self.points) - 2 and end_distance < 0.03 or (
-            self.arc[-1] - self.arc[self.progress] < 0.02 and end_distance < 0.05
-        )
+        at_last_point = self.progress >= len(self.points) - 2 and end_distance < 0.03
+        near_end = self.arc[-1] - self.arc[self.progress] < 0.02 and end_distance < 0.05
+        return at_last_point or near_end
 
 
-def drive(world: World, runs: list[Run], kinematics: TrueKinematics, duration: float,
-          control_rate: float = 50.0, limits: Limits = Limits(), start_heading: float = 0.0) -> Trajectory:
+def drive(runs: list[Run], kinematics: TrueKinematics, duration: float, control_rate: float = 50.0,
+          limits: Limits | None = None, start_heading: float = 0.0) -> Trajectory:
     """Follow ``runs`` for ``duration`` seconds; the exact true trajectory."""
+    limits = limits or Limits()
     dt = 1.0 / control_rate
     steps = int(round(duration * control_rate))
     start = np.array([*runs[0].points[0], start_heading])
@@ -290,12 +292,13 @@ def drive(world: World, runs: list[Run], kinematics: TrueKinematics, duration: f
 
 def simulate_trajectory(world: World, kinematics: TrueKinematics, duration: float, seed: int,
                         robot_radius: float, control_rate: float = 50.0,
-                        limits: Limits = Limits()) -> Trajectory:
+                        limits: Limits | None = None) -> Trajectory:
     """Plan and drive a route of ``duration`` seconds for a seed; checks it stays clear."""
+    limits = limits or Limits()
     rng = np.random.default_rng(seed)
     # The robot cannot beat cruise_max on average, so this path is always long enough.
     runs = plan_route(world, rng, limits.cruise_max * duration + 20.0, robot_radius, limits)
-    trajectory = drive(world, runs, kinematics, duration, control_rate, limits, start_heading=0.0)
+    trajectory = drive(runs, kinematics, duration, control_rate, limits, start_heading=0.0)
     clearance = world.clearance(trajectory.poses[:, :2])
     if clearance.min() < robot_radius:
         k = int(np.argmin(clearance))
