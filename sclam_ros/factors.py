@@ -48,6 +48,9 @@ class Factor:
 
     name = "factor"
     edge_dim = 3
+    # Whether variance component estimation may rescale this factor's noise: true for
+    # measurements, false for priors (their σ is a statement, not a measurement).
+    measurement = True
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -138,6 +141,7 @@ class PriorFactor(Factor):
     """A Gaussian prior on rows of one block: e = x − mean (angles wrapped where marked)."""
 
     name = "prior"
+    measurement = False
 
     def __init__(self, block, rows, mean, information, angular=(False, False, True), name=None):
         self.block = block

@@ -86,19 +86,26 @@ def jacobian_u(dphi, k):
     return _jacobian_from_partials(s, theta, ds, dtheta)
 
 
-def motion_covariance(dphi, k, wheel_noise, floor=1e-12):
-    """Covariance (..., 3, 3) of K(u, k) from independent wheel-angle noise.
+def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0):
+    """Covariance (..., 3, 3) of K(u, k): wheel-angle noise plus sideways slip.
 
-    Each wheel's increment has variance wheel_noise² · |dφ| (slip and backlash accumulate
-    with the angle turned, a random walk), plus a tiny floor so a robot standing still
-    still has a positive-definite edge (then the edge pins x_{i+1} = x_i tightly, which is
-    what standing still means).
+    Each wheel's increment has variance wheel_noise² · |dφ| + floor (slip and backlash
+    accumulate with the angle turned, a random walk; the floor is the encoder's
+    quantisation). Wheel noise alone is rank 2: the model cannot move sideways. Real
+    tyres do slip sideways a little, so a lateral variance lateral_noise² · |s| (m² per m
+    travelled) makes the edge full rank, and keeps a robot standing still positive
+    definite.
     """
     dphi = np.asarray(dphi, float)
     var = wheel_noise**2 * np.abs(dphi) + floor
     ju = jacobian_u(dphi, k)
     cov = np.einsum("...ij,...j,...kj->...ik", ju, var, ju)
-    return cov + floor * np.eye(3)
+    s, _ = arc_length_and_rotation(dphi, k)
+    lateral = lateral_noise**2 * np.abs(s) + floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    cov[..., 1, 1] += lateral
+    cov[..., 0, 0] += floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    cov[..., 2, 2] += floor * (np.mean(np.asarray(k)[..., :2]) / np.asarray(k)[..., 2]) ** 2
+    return cov
 
 
 def wheel_speeds_to_twist(v_l, v_r, k):

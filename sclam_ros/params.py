@@ -105,6 +105,13 @@ class SclamParams:
         _positive,
         "rad/sqrt(rad)",
     )
+    lateral_noise: float = _param(
+        0.002,
+        "1σ of sideways tyre slip per sqrt(metre travelled), which the wheel model cannot "
+        "express; keeps odometry edges full rank",
+        _positive,
+        "m/sqrt(m)",
+    )
     # --- scan matching --------------------------------------------------------------
     scan_voxel_size: float = _param(
         0.05, "KISS-ICP voxel size for planar indoor scans", _positive, "m"

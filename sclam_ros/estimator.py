@@ -1,0 +1,102 @@
+"""Batch calibration: all keyframes of a recording in one graph, solved jointly.
+
+    keyframes → graph (poses, k, l) → LM with variance components → estimate, marginal σ
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import graph as graph_mod
+from .inputs import Rejections
+from .params import CALIBRATION_KEYS
+from .solver import marginal_covariance, solve_with_variance_components
+
+MIN_KEYFRAMES = 10
+
+# A parameter whose posterior σ is more than this fraction of its prior σ was not
+# constrained by the data: the motion did not excite it.
+UNOBSERVED_SIGMA_RATIO = 0.5
+
+
+class CalibrationError(RuntimeError):
+    """The data cannot support a calibration; the message says why and what to do."""
+
+
+@dataclass
+class CalibrationResult:
+    estimate: dict  # the six parameters (m, rad)
+    sigma: dict  # their marginal 1σ
+    covariance: np.ndarray  # (6, 6) joint marginal, CALIBRATION_KEYS order
+    nominal: dict
+    observable: dict  # name -> bool
+    scans_used: int
+    duration_s: float
+    residual_rms: dict  # edge type -> (3,) RMS of the raw residual components (m, m, rad)
+    variance_scales: dict  # edge type -> estimated variance factor of its noise model
+    iterations: int
+    converged: bool
+    stamps: np.ndarray = field(repr=False, default=None)
+    poses: np.ndarray = field(repr=False, default=None)  # optimised, (n, 3)
+    inputs: object = field(repr=False, default=None)  # graph.GraphInputs
+    problem: object = field(repr=False, default=None)
+    rejections: Rejections = field(default_factory=Rejections)
+
+    def as_json(self) -> dict:
+        out = {k: self.estimate[k] for k in CALIBRATION_KEYS}
+        out["sigma"] = {k: self.sigma[k] for k in CALIBRATION_KEYS}
+        out["scans_used"] = int(self.scans_used)
+        out["duration_s"] = float(self.duration_s)
+        return out
+
+
+def residual_rms(problem, values) -> dict:
+    out = {}
+    for factor in problem.factors:
+        if factor.measurement and len(factor):
+            out[factor.name] = np.sqrt(np.mean(factor.residuals(values) ** 2, axis=0))
+    return out
+
+
+def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> CalibrationResult:
+    if len(keyframes) < MIN_KEYFRAMES:
+        raise CalibrationError(
+            f"only {len(keyframes)} scans could be paired with encoder data (need at least "
+            f"{MIN_KEYFRAMES}); check the topic names, joint names and that the clocks of "
+            f"both sensors overlap"
+        )
+    inputs = graph_mod.GraphInputs.from_keyframes(keyframes)
+    if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
+        raise CalibrationError(
+            f"the graph has {len(inputs.odo_from)} odometry and {len(inputs.laser_from)} "
+            f"laser edges; both are needed. Rejections: {rejections or 'none'}"
+        )
+    nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+    problem = graph_mod.build_problem(inputs, params, nominal)
+    result, scales = solve_with_variance_components(problem, progress=progress)
+    values = result.values
+    estimate = graph_mod.calibration_of(values)
+    cov = marginal_covariance(problem, values, ["odometry", "laser"])
+    sigma = np.sqrt(np.diag(cov))
+    observable = sigma < UNOBSERVED_SIGMA_RATIO * graph_mod.prior_sigmas(nominal)
+    if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(sigma)):
+        raise CalibrationError("the solver produced a non-finite estimate; the data is degenerate")
+    return CalibrationResult(
+        estimate=graph_mod.as_dict(estimate),
+        sigma=graph_mod.as_dict(sigma),
+        covariance=cov,
+        nominal=graph_mod.as_dict(nominal),
+        observable={k: bool(o) for k, o in zip(CALIBRATION_KEYS, observable)},
+        scans_used=inputs.size,
+        duration_s=float(inputs.stamps[-1] - inputs.stamps[0]),
+        residual_rms=residual_rms(problem, values),
+        variance_scales={k: v for k, v in scales.items()},
+        iterations=result.iterations,
+        converged=result.converged,
+        stamps=inputs.stamps,
+        poses=values["poses"],
+        inputs=inputs,
+        problem=problem,
+        rejections=rejections or Rejections(),
+    )

@@ -1,0 +1,181 @@
+"""Build the calibration graph of a run of keyframes: variables, factors, gauge, priors.
+
+Shared by the batch calibrator and the online window, so both estimate exactly the same
+model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from . import factors, kinematics, se2
+from .params import CALIBRATION_KEYS
+from .solver import CauchyKernel, Problem, Values
+
+# Weak priors on the calibration at its nominal value. They carry no information a real
+# run would notice (σ far beyond any plausible mounting error), but they keep the system
+# well-posed when the motion cannot excite a parameter (driving straight only: no base,
+# no laser offset), so such a parameter comes back at nominal with σ ≈ its prior σ, which
+# the report then flags as "not observable", instead of a singular matrix.
+PRIOR_SIGMA_RELATIVE_ODOMETRY = 0.25  # × nominal radius / base
+PRIOR_SIGMA_LASER_XY = 2.0  # m
+PRIOR_SIGMA_LASER_YAW = np.pi  # rad
+
+# Robust kernel for scan matches in whitened units: an ICP that slid along a corridor is
+# a gross outlier and must not drag the calibration. Cauchy (not Huber): its influence
+# decays for residuals far outside, measured on synthetic graphs (test_solver).
+LASER_KERNEL = CauchyKernel(3.0)
+
+
+def prior_sigmas(calibration) -> np.ndarray:
+    calibration = np.asarray(calibration, float)
+    return np.concatenate(
+        [
+            PRIOR_SIGMA_RELATIVE_ODOMETRY * np.abs(calibration[:3]),
+            [PRIOR_SIGMA_LASER_XY, PRIOR_SIGMA_LASER_XY, PRIOR_SIGMA_LASER_YAW],
+        ]
+    )
+
+
+def encoder_variance_floor(params) -> float:
+    """Per-wheel variance of an angle increment from tick quantisation alone (rad²).
+
+    An increment is the difference of two readings each uniformly off by up to one tick:
+    variance 2 · (tick²/12). Radian encoders get a 1e-4 rad floor.
+    """
+    tick = 2 * np.pi / params.ticks_per_revolution if params.ticks_per_revolution > 0 else 1e-4
+    return tick**2 / 6.0
+
+
+# Gate for trusting a scan match over the wheels when building the initial guess: generous
+# (a nominal calibration may be a few % off), but far below an ICP failure.
+INIT_GATE_M = 0.05
+INIT_GATE_RAD = 0.05
+INIT_GATE_RELATIVE = 0.2
+
+
+@dataclass
+class GraphInputs:
+    """Keyframes flattened into edge arrays."""
+
+    stamps: np.ndarray  # (n,)
+    odo_from: np.ndarray  # (m_o,)
+    odo_dphi: np.ndarray  # (m_o, 2)
+    laser_from: np.ndarray  # (m_l,)
+    laser_to: np.ndarray
+    laser_z: np.ndarray  # (m_l, 3)
+    laser_info: np.ndarray  # (m_l, 3, 3)
+
+    @classmethod
+    def from_keyframes(cls, keyframes, first_index=None):
+        first = keyframes[0].index if first_index is None else first_index
+        n = len(keyframes)
+        odo = [(kf.index - first - 1, kf.dphi) for kf in keyframes
+               if kf.dphi is not None and kf.index - first - 1 >= 0]
+        las = [(kf.laser_from - first, kf.index - first, kf.laser_motion, kf.laser_information)
+               for kf in keyframes
+               if kf.laser_motion is not None and kf.laser_from - first >= 0]
+        return cls(
+            stamps=np.array([kf.stamp for kf in keyframes]),
+            odo_from=np.array([o[0] for o in odo], int),
+            odo_dphi=np.array([o[1] for o in odo], float).reshape(-1, 2),
+            laser_from=np.array([e[0] for e in las], int),
+            laser_to=np.array([e[1] for e in las], int),
+            laser_z=np.array([e[2] for e in las], float).reshape(-1, 3),
+            laser_info=np.array([e[3] for e in las], float).reshape(-1, 3, 3),
+        )
+
+    @property
+    def size(self) -> int:
+        return len(self.stamps)
+
+
+def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
+    """Initial poses: chained scan matches where they exist, wheel odometry elsewhere.
+
+    Scan matches do not depend on the wheel calibration, so a chain of them starts the
+    poses close to the optimum, where the problem is nearly linear; dead reckoning with
+    a wrong nominal wheel base accumulates heading error along the whole run, and the
+    first Gauss-Newton step from there overshoots (measured: cost ×45 on a 2000-pose
+    chain) and Levenberg-Marquardt then crawls.
+
+    A scan match that disagrees grossly with the wheels (an ICP failure the robust kernel
+    will later discount) is not trusted for the start; odometry is used there instead.
+    """
+    calibration = np.asarray(calibration, float)
+    k, mount = calibration[:3], calibration[3:]
+    motion = np.zeros((inputs.size, 3))
+    known = np.zeros(inputs.size, bool)
+    motion[inputs.odo_from + 1] = kinematics.forward(inputs.odo_dphi, k)
+    known[inputs.odo_from + 1] = True
+    chained = inputs.laser_from == inputs.laser_to - 1
+    to = inputs.laser_to[chained]
+    # The base's motion from the laser's: l ∘ z ∘ l⁻¹.
+    from_laser = se2.compose(se2.compose(mount, inputs.laser_z[chained]), se2.inverse(mount))
+    disagreement = se2.between(from_laser, motion[to])
+    step = np.linalg.norm(motion[to, :2], axis=1)
+    plausible = ~known[to] | (
+        (np.linalg.norm(disagreement[:, :2], axis=1) < INIT_GATE_M + INIT_GATE_RELATIVE * step)
+        & (np.abs(disagreement[:, 2]) < INIT_GATE_RAD + INIT_GATE_RELATIVE * np.abs(motion[to, 2]))
+    )
+    motion[to[plausible]] = from_laser[plausible]
+    known[to] = True
+    poses = np.zeros((inputs.size, 3))
+    for i in range(1, inputs.size):
+        poses[i] = se2.compose(poses[i - 1], motion[i]) if known[i] else poses[i - 1]
+    return poses
+
+
+def gauge_anchors(inputs: GraphInputs) -> np.ndarray:
+    """First pose of every connected piece of the graph: those are held fixed.
+
+    Relative edges fix nothing absolute, so each piece (separated by a stretch with no
+    encoder and no scan match) needs one anchored pose.
+    """
+    src = np.concatenate([inputs.odo_from, inputs.laser_from])
+    dst = np.concatenate([inputs.odo_from + 1, inputs.laser_to])
+    adjacency = coo_matrix((np.ones(len(src)), (src, dst)), shape=(inputs.size, inputs.size))
+    _, labels = connected_components(adjacency, directed=False)
+    _, first = np.unique(labels, return_index=True)
+    return np.sort(first)
+
+
+def build_problem(inputs: GraphInputs, params, calibration, poses=None,
+                  nominal=None, extra_factors=()) -> Problem:
+    """The SCLAM least-squares problem over poses, k = (r_l, r_r, b) and l = (x, y, yaw)."""
+    calibration = np.asarray(calibration, float)
+    nominal = calibration if nominal is None else np.asarray(nominal, float)
+    if poses is None:
+        poses = initial_poses(inputs, calibration)
+    values = Values(
+        {"poses": poses, "odometry": [calibration[:3]], "laser": [calibration[3:]]},
+        angular={"poses": [False, False, True], "laser": [False, False, True]},
+    )
+    odo_cov = kinematics.motion_covariance(
+        inputs.odo_dphi, calibration[:3], params.wheel_noise, encoder_variance_floor(params),
+        params.lateral_noise,
+    )
+    sigma = prior_sigmas(nominal)
+    factor_list = [
+        factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
+                               np.linalg.inv(odo_cov)),
+        factors.LaserFactor(inputs.laser_from, inputs.laser_to, inputs.laser_z, inputs.laser_info),
+        factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(sigma[:3] ** -2.0),
+                            angular=(False, False, False), name="calibration_prior"),
+        factors.PriorFactor("laser", [0], [nominal[3:]], np.diag(sigma[3:] ** -2.0),
+                            name="calibration_prior"),
+        *extra_factors,
+    ]
+    return Problem(values, factor_list, fixed={"poses": gauge_anchors(inputs)},
+                   kernels={"laser": LASER_KERNEL})
+
+
+def calibration_of(values: Values) -> np.ndarray:
+    return np.concatenate([values["odometry"][0], values["laser"][0]])
+
+
+def as_dict(vector) -> dict:
+    return {k: float(v) for k, v in zip(CALIBRATION_KEYS, vector)}
