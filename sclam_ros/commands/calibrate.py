@@ -1,0 +1,91 @@
+"""``sclam calibrate BAG --params PARAMS.yaml``: the six calibration parameters of a recording.
+
+Reads wheel encoder ticks (sensor_msgs/JointState) and laser scans (sensor_msgs/LaserScan)
+from a rosbag2 (sqlite3 or mcap), registers consecutive scans with KISS-ICP, and estimates
+the wheel radii, the wheel base and the laser pose jointly with all robot poses in one
+graph. Prints estimate, 1σ, nominal and change; --json and --report write files.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+
+from sclam_ros.params import CALIBRATION_KEYS
+
+log = logging.getLogger("sclam")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", help="rosbag2 folder, or its .db3 / .mcap file")
+    parser.add_argument("--params", required=True, metavar="PARAMS.yaml",
+                        help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
+    parser.add_argument("--json", metavar="OUT.json", help="write the estimate and σ as JSON")
+    parser.add_argument("--report", metavar="DIR", help="write figures (trajectories, residuals) here")
+    parser.add_argument("--truth", metavar="truth.json",
+                        help="true values (e.g. from `sclam simulate`) to print beside the estimate")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def _human(key, value):
+    """Value in the unit a person reads: mm for lengths, degrees for the yaw (labelled)."""
+    return (math.degrees(value), "deg") if key == "laser_yaw" else (1000.0 * value, "mm")
+
+
+def format_table(result, truth=None) -> str:
+    header = f"{'parameter':<20}{'estimate':>12}{'1σ':>10}{'nominal':>12}{'change':>11}"
+    if truth:
+        header += f"{'truth':>12}{'error':>10}{'err/σ':>7}"
+    lines = [header + "  unit", "-" * len(header)]
+    for key in CALIBRATION_KEYS:
+        est, unit = _human(key, result.estimate[key])
+        sig, _ = _human(key, result.sigma[key])
+        nom, _ = _human(key, result.nominal[key])
+        row = f"{key:<20}{est:>12.3f}{sig:>10.3f}{nom:>12.3f}{est - nom:>+11.3f}"
+        if truth:
+            tru, _ = _human(key, truth[key])
+            row += f"{tru:>12.3f}{est - tru:>+10.3f}{(est - tru) / sig:>+7.1f}"
+        flag = "" if result.observable[key] else "  NOT OBSERVABLE from this motion"
+        lines.append(row + f"  {unit}{flag}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from sclam_ros.bag import BagError
+    from sclam_ros.estimator import CalibrationError, calibrate_keyframes
+    from sclam_ros.offline import read_recording
+    from sclam_ros.params import ParamsError, SclamParams, atomic_write_text
+    from sclam_ros.progress import ProgressBar
+
+    try:
+        params = SclamParams.from_yaml(args.params)
+        truth = json.loads(Path(args.truth).read_text()) if args.truth else None
+        recording = read_recording(args.bag, params,
+                                   progress=ProgressBar("reading + scan matching", not args.quiet))
+        if recording.rejections.total():
+            log.warning("rejected input (counted, not used): %s", recording.rejections)
+        result = calibrate_keyframes(
+            recording.keyframes, params, recording.rejections,
+            progress=None if args.quiet else lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost),
+        )
+    except (ParamsError, BagError, CalibrationError, FileNotFoundError, json.JSONDecodeError) as exc:
+        print(f"sclam calibrate: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{result.scans_used} scans over {result.duration_s:.1f} s; "
+          f"solver: {result.iterations} iterations, converged: {result.converged}")
+    print(format_table(result, truth))
+    if not all(result.observable.values()):
+        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks the "
+              "motion that excites them (turns in both directions for the wheel base and the "
+              "laser offset).")
+    if args.json:
+        atomic_write_text(args.json, json.dumps(result.as_json(), indent=2) + "\n")
+    if args.report:
+        from sclam_ros.report import write_calibration_report
+
+        figures = write_calibration_report(args.report, args.bag, result, params)
+        print("figures: " + ", ".join(str(f) for f in figures))
+    return 0

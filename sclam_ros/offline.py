@@ -1,0 +1,72 @@
+"""Run a recording through the same frontend the live node uses, as fast as possible."""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+from . import bag
+from .conversions import MessageRejected, joint_state_to_raw, laser_scan_to_scan
+from .frontend import Frontend
+from .inputs import Rejections
+
+log = logging.getLogger("sclam")
+
+GROUND_TRUTH_TOPIC = "/ground_truth/odom"
+
+
+@dataclass
+class Recording:
+    """What a bag yields for the estimator: keyframes, rejections and counts."""
+
+    keyframes: list
+    rejections: Rejections
+    messages: dict = field(default_factory=dict)  # topic -> messages read
+    frontend: Frontend = None
+
+
+def iter_keyframes(path, params, frontend=None, progress=None):
+    """Yield keyframes from a bag in record order; `frontend` may be shared with a caller
+    that wants to update its calibration while reading (the online tracker)."""
+    frontend = frontend or Frontend(params)
+    topics = [params.joint_states_topic, params.scan_topic]
+    total = sum(bag.topic_info(path).get(t, (None, 0))[1] for t in topics)
+    seen = 0
+    for topic, _, msg in bag.iter_messages(path, topics):
+        seen += 1
+        if progress is not None and seen % 500 == 0:
+            progress(seen, total)
+        if topic == params.joint_states_topic:
+            try:
+                stamp, left, right = joint_state_to_raw(msg, params)
+            except MessageRejected as exc:
+                frontend.rejections.add(exc.reason)
+                continue
+            yield from frontend.add_encoder(stamp, left, right)
+        else:
+            yield from frontend.add_scan(laser_scan_to_scan(msg))
+    yield from frontend.flush()
+    if progress is not None:
+        progress(total, total)
+
+
+def read_recording(path, params, progress=None) -> Recording:
+    frontend = Frontend(params)
+    keyframes = list(iter_keyframes(path, params, frontend, progress))
+    return Recording(keyframes, frontend.rejections, frontend=frontend)
+
+
+def read_ground_truth(path, topic=GROUND_TRUTH_TOPIC):
+    """(stamps, poses) of a ground-truth nav_msgs/Odometry topic, or None if the bag has none."""
+    import numpy as np
+
+    from .conversions import stamp_to_sec
+
+    if topic not in bag.topic_info(path):
+        return None
+    stamps, poses = [], []
+    for _, _, msg in bag.iter_messages(path, [topic]):
+        q = msg.pose.pose.orientation
+        yaw = np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        stamps.append(stamp_to_sec(msg.header.stamp))
+        poses.append((msg.pose.pose.position.x, msg.pose.pose.position.y, yaw))
+    return np.array(stamps), np.array(poses)

@@ -1,0 +1,229 @@
+"""Online calibration: a sliding window for the wheel radii, accumulated priors for the rest.
+
+Scheme (issue: the online node):
+  - The graph holds the keyframes of the last `window_distance` metres travelled (and at
+    most MAX_WINDOW_KEYFRAMES, so standing still cannot grow it). The wheel radii are
+    estimated from this window only: when a load compresses the tyres, the old data
+    leaves the window and stops pulling.
+  - The wheel base and the laser pose do not drift; the information the leaving keyframes
+    held about them is kept. Leaving keyframes are marginalised: their edges are
+    linearised at the current estimate and everything but (b, l) — their poses and the
+    radii they were driven with — is integrated out (a Schur complement), giving a 4×4
+    Gaussian that is added to the prior on (b, l). Information adds up; the cost of the
+    window stays constant.
+  - Every `solve_every` keyframes the window is re-solved by LM, warm-started.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+from . import factors, graph as graph_mod, kinematics
+from .frontend import Frontend
+from .inputs import Rejections
+from .params import CALIBRATION_KEYS
+from .solver import Problem, levenberg_marquardt, marginal_covariance
+
+MAX_WINDOW_KEYFRAMES = 3000
+# Keyframes are marginalised in chunks: one dense Schur complement per chunk of this size.
+MARGINALISE_BATCH = 30
+SLOW_KEYS = ("wheel_base", "laser_x", "laser_y", "laser_yaw")
+
+
+@dataclass
+class Estimate:
+    """The current calibration and its marginal uncertainty."""
+
+    stamp: float
+    values: dict  # the six CALIBRATION_KEYS
+    sigma: dict
+    covariance: np.ndarray  # (6, 6)
+    keyframes_in_window: int
+    window_distance: float  # m covered by the window
+    converged: bool = True
+
+    def vector(self):
+        return np.array([self.values[k] for k in CALIBRATION_KEYS])
+
+
+@dataclass
+class _Slow:
+    """Accumulated Gaussian on (b, l_x, l_y, l_yaw) from marginalised keyframes."""
+
+    information: np.ndarray = field(default_factory=lambda: np.zeros((4, 4)))
+    eta: np.ndarray = field(default_factory=lambda: np.zeros(4))  # information vector
+
+    def add(self, info, mean):
+        self.information = self.information + info
+        self.eta = self.eta + info @ mean
+
+    def mean(self, fallback):
+        if np.linalg.matrix_rank(self.information) < 4:
+            return fallback
+        return np.linalg.solve(self.information, self.eta)
+
+
+class OnlineCalibrator:
+    """Feeds on encoder samples and scans in arrival order; keeps an up-to-date Estimate."""
+
+    def __init__(self, params, rejections: Optional[Rejections] = None, solve_every: int = 10):
+        self.params = params
+        self.rejections = rejections if rejections is not None else Rejections()
+        self.solve_every = solve_every
+        self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+        self.frontend = Frontend(params, self.rejections)
+        self.reset_calibration()
+
+    # --- user actions -------------------------------------------------------------------
+    def reset_window(self) -> None:
+        """Forget the keyframes of the window (the radii restart from their current value)."""
+        self.window = deque()
+        self._distance = deque()  # metres travelled by each keyframe's odometry edge
+        self._leaving = []  # keyframes out of the window, waiting to be marginalised
+        self._since_solve = 0
+
+    def reset_calibration(self) -> None:
+        """Back to the nominal values and no accumulated information at all."""
+        self.calibration = self.nominal.copy()
+        self.frontend.calibration = self.calibration.copy()
+        self.slow = _Slow()
+        self.estimate: Optional[Estimate] = None
+        self.solves = 0
+        self.reset_window()
+
+    def set_window_distance(self, metres: float) -> None:
+        self.params.window_distance = float(metres)
+        self._trim()
+
+    # --- data -----------------------------------------------------------------------------
+    def add_encoder(self, stamp, left_raw, right_raw) -> Optional[Estimate]:
+        return self._consume(self.frontend.add_encoder(stamp, left_raw, right_raw))
+
+    def add_scan(self, scan) -> Optional[Estimate]:
+        return self._consume(self.frontend.add_scan(scan))
+
+    def _consume(self, keyframes) -> Optional[Estimate]:
+        updated = None
+        for kf in keyframes:
+            self.window.append(kf)
+            travelled = 0.0
+            if kf.dphi is not None:
+                s, _ = kinematics.arc_length_and_rotation(kf.dphi, self.calibration[:3])
+                travelled = abs(float(s))
+            self._distance.append(travelled)
+            self._trim()
+            self._since_solve += 1
+            if self._since_solve >= self.solve_every and len(self.window) >= 10:
+                updated = self.solve()
+        return updated
+
+    def window_length(self) -> float:
+        return float(sum(self._distance))
+
+    def _trim(self) -> None:
+        leaving = []
+        while len(self.window) > 2 and (
+            self.window_length() - self._distance[0] > self.params.window_distance
+            or len(self.window) > MAX_WINDOW_KEYFRAMES
+        ):
+            leaving.append(self.window.popleft())
+            self._distance.popleft()
+        self._leaving.extend(leaving)
+        if len(self._leaving) >= MARGINALISE_BATCH:
+            self._marginalise(self._leaving)
+            # The last leaving keyframe stays as the start of the next chunk so the edges
+            # between chunks are not lost.
+            self._leaving = [self._leaving[-1]]
+
+    # --- estimation -----------------------------------------------------------------------
+    def _problem(self, keyframes, prior_slow=True):
+        inputs = graph_mod.GraphInputs.from_keyframes(list(keyframes))
+        extra = []
+        if prior_slow and np.linalg.matrix_rank(self.slow.information) == 4:
+            extra.append(_SlowPrior(self.slow))
+        return inputs, graph_mod.build_problem(
+            inputs, self.params, self.calibration, nominal=self.nominal, extra_factors=extra
+        )
+
+    def _marginalise(self, leaving) -> None:
+        """Keep what the leaving keyframes knew about (b, l): a Schur complement.
+
+        H of the leaving edges alone, linearised at the current estimate, over (poses, k, l);
+        everything but (b, l) is integrated out: Λ = H_ss − H_sr H_rr⁺ H_rs. A short chunk
+        alone cannot determine its radii, so H_rr may be singular: the pseudo-inverse keeps
+        exactly the information that is there and no more.
+        """
+        inputs, problem = self._problem(leaving, prior_slow=False)
+        if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
+            return
+        problem.factors = [f for f in problem.factors if f.measurement]
+        jac = problem.linear_system(problem.values).jacobian.toarray()
+        hessian = jac.T @ jac
+        layout = problem.layout
+        odo_cols = layout.columns("odometry")
+        slow = np.concatenate([odo_cols[2:], layout.columns("laser")])
+        rest = np.setdiff1d(np.arange(layout.size), slow)
+        h_rr = hessian[np.ix_(rest, rest)]
+        h_sr = hessian[np.ix_(slow, rest)]
+        info = hessian[np.ix_(slow, slow)] - h_sr @ np.linalg.pinv(h_rr, hermitian=True) @ h_sr.T
+        info = 0.5 * (info + info.T)
+        self.slow.add(info, self.calibration[2:])
+
+    def solve(self) -> Optional[Estimate]:
+        self._since_solve = 0
+        inputs, problem = self._problem(self.window)
+        if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
+            return None
+        result = levenberg_marquardt(problem, max_iterations=10)
+        estimate = graph_mod.calibration_of(result.values)
+        if not np.all(np.isfinite(estimate)):
+            self.rejections.add("online_solve_non_finite")
+            return None
+        cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+        self.calibration = estimate
+        self.frontend.calibration = estimate.copy()
+        self.solves += 1
+        self.estimate = Estimate(
+            stamp=float(inputs.stamps[-1]),
+            values=graph_mod.as_dict(estimate),
+            sigma=graph_mod.as_dict(np.sqrt(np.clip(np.diag(cov), 0, None))),
+            covariance=cov,
+            keyframes_in_window=len(self.window),
+            window_distance=self.window_length(),
+            converged=result.converged,
+        )
+        return self.estimate
+
+
+class _SlowPrior(factors.Factor):
+    """The accumulated Gaussian on (b, l) as a factor over the odometry and laser blocks."""
+
+    name = "marginal_prior"
+    measurement = False
+
+    def __init__(self, slow: _Slow):
+        self.mean = slow.mean(None)
+        self._sqrt_info = factors.sqrt_information(
+            (slow.information + 1e-12 * np.eye(4))[None]
+        )
+
+    def __len__(self):
+        return 1
+
+    def linearize(self, values):
+        current = np.concatenate([values["odometry"][0][2:], values["laser"][0]])
+        residual = current - self.mean
+        residual[3] = (residual[3] + np.pi) % (2 * np.pi) - np.pi
+        j_odo = np.zeros((1, 4, 3))
+        j_odo[0, 0, 2] = 1.0
+        j_laser = np.zeros((1, 4, 3))
+        j_laser[0, 1:, :] = np.eye(3)
+        zeros = np.zeros(1, int)
+        return factors.Linearization(
+            residual[None], self._sqrt_info,
+            [factors.JacobianBlock("odometry", zeros, j_odo),
+             factors.JacobianBlock("laser", zeros, j_laser)],
+        )
