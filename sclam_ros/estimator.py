@@ -64,7 +64,7 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         raise CalibrationError(
             f"only {len(keyframes)} scans could be paired with encoder data (need at least "
             f"{MIN_KEYFRAMES}); check the topic names, joint names and that the clocks of "
-            f"both sensors overlap"
+            f"both sensors overlap. Rejections: {rejections or 'none'}"
         )
     inputs = graph_mod.GraphInputs.from_keyframes(keyframes)
     if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:

@@ -16,9 +16,14 @@ from typing import Optional
 
 import numpy as np
 
-from . import kinematics
+from . import kinematics, point_to_line
 from .inputs import Rejections, Scan
-from .scan_matching import ScanMatcher, ScanMatcherConfig, laser_motion_from_base_motion
+from .scan_matching import (
+    ScanMatcher,
+    ScanMatcherConfig,
+    laser_motion_from_base_motion,
+    scan_to_points,
+)
 from .sync import EncoderStream, ScanSynchronizer, increment_between
 
 
@@ -54,6 +59,9 @@ class Frontend:
         )
         self._previous = None  # last SyncedScan
         self._count = 0
+        # The last scan the matcher accepted, prepared for point-to-line refinement.
+        self._reference = None
+        self._reference_index = None
 
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list:
         return [self._keyframe(s) for s in self.sync.add_encoder(stamp, left_raw, right_raw)]
@@ -79,9 +87,22 @@ class Frontend:
                 self.rejections.add(reason)
         # The matcher is called once per keyframe, so its scan indices are keyframe indices.
         match = self.matcher.add_scan(synced.scan, guess)
+        points = None
         if match is not None:
+            z = np.asarray(match.z, float)
+            points = scan_to_points(synced.scan, self.matcher.config.min_range,
+                                    self.matcher.config.max_range)
+            reference = self._reference if self._reference_index == match.index_from else None
+            if reference is not None:
+                z, _ = point_to_line.refine(reference, points, z)
             kf.laser_from = int(match.index_from)
-            kf.laser_motion = np.asarray(match.z, float)
+            kf.laser_motion = z
             kf.laser_information = np.asarray(match.information, float)
+        if match is not None or self._reference_index is None:
+            if points is None:
+                points = scan_to_points(synced.scan, self.matcher.config.min_range,
+                                        self.matcher.config.max_range)
+            self._reference = point_to_line.ReferenceScan.from_points(points)
+            self._reference_index = index
         self._previous = synced
         return kf

@@ -39,6 +39,8 @@ def iter_keyframes(path, params, frontend=None, progress=None):
             try:
                 stamp, left, right = joint_state_to_raw(msg, params)
             except MessageRejected as exc:
+                if exc.reason not in frontend.rejections.counts:
+                    log.warning("rejecting %s messages (counted): %s", topic, exc)
                 frontend.rejections.add(exc.reason)
                 continue
             yield from frontend.add_encoder(stamp, left, right)

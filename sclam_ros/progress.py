@@ -7,11 +7,11 @@ import time
 
 
 class ProgressBar:
-    def __init__(self, label: str, enabled: bool = True, stream=sys.stderr):
+    def __init__(self, label: str, enabled: bool = True, stream=None):
         self.label = label
-        self.stream = stream
+        self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled
-        self.interactive = enabled and stream.isatty() and not os.environ.get("CI")
+        self.interactive = enabled and self.stream.isatty() and not os.environ.get("CI")
         self.start = time.monotonic()
         self._last_line = 0.0
 
