@@ -9,6 +9,7 @@ import sys
 COMMANDS = {
     "calibrate": "Calibrate wheel radii, wheel base and laser pose from a rosbag2 recording",
     "simulate": "Write a simulated rosbag2 recording with ground truth",
+    "play": "Publish a rosbag2 recording on the live ROS graph with its original timing",
     "convert": "Convert a published real-robot log (breezyslam, optiodom) to rosbag2 + params.yaml",
 }
 

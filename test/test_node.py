@@ -1,0 +1,458 @@
+"""sclam_node and sclam play over real DDS: one rclpy context per test, executors in threads.
+
+Every wait is on a condition with a timeout (a poll of a counter or a message seen), never a
+fixed sleep. Each test process uses its own ROS_DOMAIN_ID so parallel runs do not hear
+each other.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 200)
+
+import rclpy  # noqa: E402
+import yaml  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterType, ParameterValue  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import JointState, LaserScan  # noqa: E402
+from std_msgs.msg import Float64MultiArray  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from sclam_ros.bag import iter_messages, topic_info  # noqa: E402
+from sclam_ros.commands.play import rclpy_class, rosbags_to_rclpy  # noqa: E402
+from sclam_ros.node import OdometryIntegrator, SclamNode  # noqa: E402
+from sclam_ros.params import SclamParams  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+VENV_BIN = Path(sys.executable).parent
+TIMEOUT = 30.0
+# 40 s of driving is too little for the online window to pin the radii (≈10 % off);
+# 60 s brings them within ~0.5 %.
+DURATION = 60.0
+
+
+def wait_for(condition, timeout=TIMEOUT, what="condition"):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.0005)  # polling interval of the condition, not a synchronisation
+
+
+# --- fixtures ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def recording(tmp_path_factory):
+    from sclam_ros.sim import simulate
+
+    out = tmp_path_factory.mktemp("node") / "powerbot"
+    simulate(out, robot="powerbot", duration=DURATION, seed=3)
+    params = SclamParams.from_yaml(out / "params.yaml")
+    info = topic_info(out)
+    topics = [params.joint_states_topic, params.scan_topic]
+    messages = [
+        (topic, rosbags_to_rclpy(msg, rclpy_class(info[topic][0])))
+        for topic, _, msg in iter_messages(out, topics)
+    ]
+    truth = json.loads((out / "truth.json").read_text())
+    return {"path": out, "params": params, "messages": messages, "truth": truth}
+
+
+class Graph:
+    """A context, an executor spinning in a thread, a test node with helpers."""
+
+    def __init__(self):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.executor = MultiThreadedExecutor(num_threads=4, context=self.context)
+        self.tester = rclpy.create_node("tester", context=self.context)
+        self.executor.add_node(self.tester)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        self.received = {}
+        self.lock = threading.Lock()
+        self.nodes = []
+
+    def add(self, node):
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def subscribe(self, msg_type, topic, qos=100):
+        self.received[topic] = []
+
+        def callback(msg):
+            with self.lock:
+                self.received[topic].append(msg)
+
+        self.tester.create_subscription(msg_type, topic, callback, qos)
+
+    def messages(self, topic):
+        with self.lock:
+            return list(self.received[topic])
+
+    def call(self, srv_type, name, request):
+        client = self.tester.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=TIMEOUT), f"service {name} not available"
+        future = client.call_async(request)
+        done = threading.Event()
+        future.add_done_callback(lambda _: done.set())
+        assert done.wait(TIMEOUT), f"no response from {name}"
+        return future.result()
+
+    def close(self):
+        self.executor.shutdown()
+        for node in self.nodes:
+            node.destroy_node()
+        self.tester.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self.thread.join(TIMEOUT)
+
+
+@pytest.fixture
+def graph():
+    g = Graph()
+    yield g
+    g.close()
+
+
+def start_node(graph, params, **extra):
+    overrides = [Parameter(k, value=v) for k, v in vars(params).items()]
+    overrides += [Parameter(k, value=v) for k, v in extra.items()]
+    return graph.add(SclamNode(context=graph.context, parameter_overrides=overrides))
+
+
+class Feeder:
+    """Publishes recorded messages to the node one at a time, each once the node has it."""
+
+    def __init__(self, graph, node, params):
+        self.node = node
+        self.joint_states_topic = params.joint_states_topic
+        self.pubs = {
+            params.joint_states_topic: ("joint_states", graph.tester.create_publisher(
+                JointState, params.joint_states_topic, 200)),
+            params.scan_topic: ("scan", graph.tester.create_publisher(
+                LaserScan, params.scan_topic, 50)),
+        }
+        for _, pub in self.pubs.values():
+            wait_for(lambda pub=pub: pub.get_subscription_count() > 0, what="node subscriptions")
+
+    def publish(self, topic, msg):
+        key, pub = self.pubs[topic]
+        target = self.node.received[key] + 1
+        pub.publish(msg)
+        wait_for(lambda: self.node.received[key] >= target, what=f"node to receive {topic}")
+
+    def feed(self, messages):
+        """In recorded order: the encoder samples before a scan are all in before the scan."""
+        pub = self.pubs[self.joint_states_topic][1]
+        sent = 0
+        for topic, msg in messages:
+            if self.pubs[topic][0] == "joint_states":
+                if sent == 0:
+                    base = self.node.received["joint_states"]
+                pub.publish(msg)
+                sent += 1
+            else:
+                if sent:
+                    wait_for(lambda: self.node.received["joint_states"] >= base + sent,
+                             what="node to receive the joint states")
+                    sent = 0
+                self.publish(topic, msg)
+        if sent:
+            wait_for(lambda: self.node.received["joint_states"] >= base + sent,
+                     what="node to receive the joint states")
+
+
+def diagnostics_values(msg):
+    return {kv.key: kv.value for kv in msg.status[0].values}
+
+
+def wait_diagnostics(graph, condition, what):
+    """The values of the first /diagnostics message from now on that satisfies condition."""
+    start = len(graph.messages("/diagnostics"))
+    found = {}
+
+    def check():
+        for msg in graph.messages("/diagnostics")[start:]:
+            values = diagnostics_values(msg)
+            if condition(values):
+                found.update(values)
+                return True
+        return False
+
+    wait_for(check, what=what)
+    return found
+
+
+# --- tests ------------------------------------------------------------------------------
+
+
+def test_odometry_integrator_drives_straight_and_turns_in_place():
+    params = SclamParams(ticks_per_revolution=1000.0, wheel_radius_left=0.1,
+                         wheel_radius_right=0.1, wheel_base=0.5)
+    odo = OdometryIntegrator(params)
+    k, k_cov = np.array([0.1, 0.1, 0.5]), np.diag([1e-6, 1e-6, 1e-4])
+    for i in range(11):  # one revolution of both wheels in 10 steps
+        odo.add(0.1 * i, 100.0 * i, 100.0 * i, k, k_cov)
+    np.testing.assert_allclose(odo.pose, [2 * np.pi * 0.1, 0, 0], atol=1e-12)
+    cov = odo.covariance(k_cov)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    # The radius uncertainty, shared by every step, adds to the wheel noise.
+    assert cov[0, 0] > odo.noise_cov[0, 0]
+    for i in range(11, 21):  # opposite wheels: turn in place
+        odo.add(0.1 * i, 1000.0 - 100.0 * (i - 10), 100.0 * i, k, k_cov)
+    assert abs(odo.pose[0] - 2 * np.pi * 0.1) < 1e-9
+    # A sample going back in time is refused and integrates nothing.
+    pose = odo.pose.copy()
+    assert not odo.add(1.0, 0.0, 0.0, k, k_cov)
+    np.testing.assert_array_equal(odo.pose, pose)
+
+
+def test_node_publishes_odometry_and_converges_to_truth(graph, recording):
+    params, truth = recording["params"], recording["truth"]
+    node = start_node(graph, params)
+    graph.subscribe(Odometry, "/sclam/odom", 5000)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    graph.subscribe(Float64MultiArray, "/sclam/wheel_parameters", latched)
+    graph.subscribe(PoseWithCovarianceStamped, "/sclam/laser_pose", latched)
+    Feeder(graph, node, params).feed(recording["messages"])
+    n_encoders = sum(1 for t, _ in recording["messages"] if t == params.joint_states_topic)
+
+    wait_for(lambda: len(graph.messages("/sclam/odom")) >= n_encoders - 1, what="odometry")
+    odom = graph.messages("/sclam/odom")
+    assert {m.header.frame_id for m in odom} == {"odom"}
+    assert {m.child_frame_id for m in odom} == {"base_link"}
+    last = odom[-1]
+    p = last.pose.pose.position
+    assert all(math.isfinite(v) for v in (p.x, p.y, last.pose.pose.orientation.z))
+    cov = np.reshape(last.pose.covariance, (6, 6))
+    assert np.all(np.isfinite(cov)) and cov[0, 0] > 0 and cov[5, 5] > 0
+    assert math.hypot(p.x, p.y) > 0.5  # it drove somewhere
+
+    wait_for(lambda: node.estimates > 0 and graph.messages("/sclam/wheel_parameters")
+             and len(graph.messages("/sclam/wheel_parameters")) >= 1, what="wheel parameters")
+    wait_for(lambda: list(graph.messages("/sclam/wheel_parameters")[-1].data)
+             == [float(v) for v in _published_wheels(node)], what="the last wheel parameters")
+    wheels = graph.messages("/sclam/wheel_parameters")[-1]
+    assert [d.label for d in wheels.layout.dim] == [
+        "value,sigma", "wheel_radius_left,wheel_radius_right,wheel_base"]
+    values, sigmas = np.reshape(wheels.data, (2, 3))
+    expected = [truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"]]
+    np.testing.assert_allclose(values, expected, rtol=0.03)
+    assert np.all(sigmas > 0) and np.all(sigmas < 0.05 * values)
+
+    wait_for(lambda: graph.messages("/sclam/laser_pose"), what="laser pose")
+    laser = graph.messages("/sclam/laser_pose")[-1]
+    assert laser.header.frame_id == "base_link"
+    assert abs(laser.pose.pose.position.x - truth["laser_x"]) < 0.05
+    laser_cov = np.reshape(laser.pose.covariance, (6, 6))
+    assert laser_cov[0, 0] > 0 and laser_cov[5, 5] > 0 and laser_cov[2, 2] == 0
+
+
+def _published_wheels(node):
+    est = node.calibrator.estimate
+    keys = ("wheel_radius_left", "wheel_radius_right", "wheel_base")
+    return [est.values[k] for k in keys] + [est.sigma[k] for k in keys]
+
+
+def test_reset_and_save_services(graph, recording, tmp_path):
+    params = recording["params"]
+    saved = tmp_path / "out" / "calibration.yaml"
+    node = start_node(graph, params, calibration_file=str(saved))
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    half = recording["messages"][: len(recording["messages"]) // 2]
+    Feeder(graph, node, params).feed(half)
+    wait_for(lambda: node.estimates > 0, what="a first estimate")
+    wait_diagnostics(graph, lambda v: int(v["window_keyframes"]) > 10, "a filled window")
+
+    response = graph.call(Trigger, "/sclam/save_calibration", Trigger.Request())
+    assert response.success, response.message
+    written = SclamParams.from_yaml(saved)
+    estimate = node.calibrator.estimate
+    assert written.wheel_radius_left == pytest.approx(estimate.values["wheel_radius_left"])
+    assert written.wheel_radius_left != params.wheel_radius_left
+    assert written.ticks_per_revolution == params.ticks_per_revolution
+
+    response = graph.call(Trigger, "/sclam/reset_window", Trigger.Request())
+    assert response.success
+    values = wait_diagnostics(graph, lambda v: int(v["window_keyframes"]) <= 1,
+                              "the window to be empty")
+    assert float(values["window_length_m"]) < 0.1
+
+    response = graph.call(Trigger, "/sclam/reset_calibration", Trigger.Request())
+    assert response.success
+    assert graph.call(Trigger, "/sclam/save_calibration", Trigger.Request()).success
+    assert SclamParams.from_yaml(saved).calibration() == params.calibration()
+    assert "no estimate yet" in saved.read_text()
+
+
+def _set_parameter(graph, name, value, ptype):
+    request = SetParameters.Request()
+    pv = ParameterValue(type=ptype)
+    if ptype == ParameterType.PARAMETER_DOUBLE:
+        pv.double_value = value
+    elif ptype == ParameterType.PARAMETER_STRING:
+        pv.string_value = value
+    request.parameters = [ParameterMsg(name=name, value=pv)]
+    return graph.call(SetParameters, "/sclam/set_parameters", request).results[0]
+
+
+def test_window_distance_parameter_at_runtime(graph, recording):
+    node = start_node(graph, recording["params"])
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    result = _set_parameter(graph, "window_distance", 5.0, ParameterType.PARAMETER_DOUBLE)
+    assert result.successful, result.reason
+    assert node.calibrator.params.window_distance == 5.0
+    wait_diagnostics(graph, lambda v: float(v["window_distance_m"]) == 5.0, "the new distance")
+
+    result = _set_parameter(graph, "window_distance", -1.0, ParameterType.PARAMETER_DOUBLE)
+    assert not result.successful and "window_distance" in result.reason and "> 0" in result.reason
+    result = _set_parameter(graph, "window_distance", float("nan"), ParameterType.PARAMETER_DOUBLE)
+    assert not result.successful and result.reason
+    result = _set_parameter(graph, "window_distance", "far", ParameterType.PARAMETER_STRING)
+    assert not result.successful and "number" in result.reason
+    result = _set_parameter(graph, "wheel_base", 1.0, ParameterType.PARAMETER_DOUBLE)
+    assert not result.successful  # read-only: the nominal values need a restart
+    assert node.get_parameter("window_distance").value == 5.0
+
+
+def test_bad_input_is_counted_and_survived(graph, recording):
+    params = recording["params"]
+    node = start_node(graph, params)
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    graph.subscribe(Odometry, "/sclam/odom", 1000)
+    feeder = Feeder(graph, node, params)
+    good = [m for m in recording["messages"][:200]]
+    feeder.feed(good[:100])
+
+    wrong_names = JointState(name=["a", "b"], position=[1.0, 2.0])
+    wrong_names.header.stamp.sec = 1700000100
+    nan_positions = JointState(name=[params.left_wheel_joint, params.right_wheel_joint],
+                               position=[float("nan"), 1.0])
+    nan_positions.header.stamp.sec = 1700000100
+    empty_scan = LaserScan()
+    empty_scan.header.stamp.sec = 1700000100
+    empty_scan.header.frame_id = "laser"
+    feeder.publish(params.joint_states_topic, wrong_names)
+    feeder.publish(params.joint_states_topic, nan_positions)
+    feeder.publish(params.scan_topic, empty_scan)
+    # Stamps going backwards, and a clock jump of an hour back: the old data again.
+    feeder.feed(good[50:60])
+    for topic, msg in good[:40]:
+        feeder.publish(topic, _shifted(msg, -3600))
+    feeder.feed(good[100:])
+
+    values = wait_diagnostics(
+        graph, lambda v: int(v["joint_states_received"]) + int(v["scans_received"])
+        == sum(node.received.values()), "diagnostics covering everything sent")
+    assert values["rejected_joint_state_missing_joint"] == "1"
+    assert values["rejected_joint_state_non_finite"] == "1"
+    assert values["rejected_scan_empty"] == "1"
+    assert int(values["rejected_total"]) >= 3 + 1  # + stamps going backwards
+    assert "rejected_internal_error" not in values
+    odom = graph.messages("/sclam/odom")
+    assert odom and all(math.isfinite(m.pose.pose.position.x) for m in odom)
+    assert graph.call(Trigger, "/sclam/reset_window", Trigger.Request()).success  # alive
+
+
+def _shifted(msg, seconds):
+    out = type(msg)()
+    for name in msg.get_fields_and_field_types():
+        setattr(out, name, getattr(msg, name))
+    header = type(msg.header)()
+    header.frame_id = msg.header.frame_id
+    header.stamp.sec = msg.header.stamp.sec + seconds
+    header.stamp.nanosec = msg.header.stamp.nanosec
+    out.header = header
+    return out
+
+
+def test_console_script_with_params_file(graph, recording, tmp_path):
+    params = recording["params"]
+    graph.subscribe(Odometry, "/sclam/odom", 1000)
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    process = subprocess.Popen(
+        [str(VENV_BIN / "sclam_node"), "--ros-args", "--params-file",
+         str(recording["path"] / "params.yaml")],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    try:
+        pub = graph.tester.create_publisher(JointState, params.joint_states_topic, 200)
+        wait_for(lambda: (pub.get_subscription_count() > 0
+                          and graph.tester.count_publishers("/sclam/odom") == 1)
+                 or process.poll() is not None, what="sclam_node's subscription")
+        assert process.poll() is None, process.stdout.read()
+        encoders = [m for t, m in recording["messages"] if t == params.joint_states_topic][:100]
+        for msg in encoders:
+            pub.publish(msg)
+        # The node publishes odometry from the second sample on.
+        wait_for(lambda: len(graph.messages("/sclam/odom")) >= 99, what="odometry")
+        odom = graph.messages("/sclam/odom")[-1]
+        assert odom.header.frame_id == "odom" and odom.child_frame_id == "base_link"
+        wait_diagnostics(graph, lambda v: v.get("joint_states_received") == "100", "diagnostics")
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            code = process.wait(TIMEOUT)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            raise
+    output = process.stdout.read()
+    assert code == 0, output
+    assert "Traceback" not in output, output
+
+
+def test_play_publishes_every_message(graph, recording, tmp_path):
+    info = topic_info(recording["path"])
+    topics = {"/joint_states": JointState, "/scan": LaserScan, "/ground_truth/odom": Odometry}
+    for topic, msg_type in topics.items():
+        graph.subscribe(msg_type, topic, QoSProfile(depth=5000))
+    process = subprocess.Popen(
+        [str(VENV_BIN / "sclam"), "play", str(recording["path"]), "--rate", "20", "--clock",
+         "--wait-for-subscribers", str(TIMEOUT)],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+    try:
+        wait_for(lambda: all(len(graph.messages(t)) >= info[t][1] for t in topics)
+                 or process.poll() not in (None, 0), timeout=60, what="all played messages")
+        code = process.wait(TIMEOUT)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert code == 0, process.stdout.read()
+    for topic in topics:
+        assert len(graph.messages(topic)) == info[topic][1], topic
+    scans = graph.messages("/scan")
+    assert len(scans[0].ranges) == 360 and scans[0].header.frame_id == "laser"
+    stamps = [m.header.stamp.sec + 1e-9 * m.header.stamp.nanosec for m in scans]
+    assert np.all(np.diff(stamps) > 0)
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "launch_configs").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_launch_config_loads(path):
+    params = SclamParams.from_yaml(path)
+    doc = yaml.safe_load(path.read_text())
+    assert "sclam" in doc or "/**" in doc
+    assert params.wheel_radius_left > 0
