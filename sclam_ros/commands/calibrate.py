@@ -28,6 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth", metavar="truth.json",
                         help="true values (e.g. from `sclam simulate`) to print beside the estimate")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument("--verbose", action="store_true", help="log every solver iteration")
 
 
 def _human(key, value):
@@ -67,9 +68,12 @@ def run(args) -> int:
                                    progress=ProgressBar("reading + scan matching", not args.quiet))
         if recording.rejections.total():
             log.warning("rejected input (counted, not used): %s", recording.rejections)
+        if not args.quiet:
+            log.info("solving the graph: %d scans", len(recording.keyframes))
         result = calibrate_keyframes(
             recording.keyframes, params, recording.rejections,
-            progress=None if args.quiet else lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost),
+            progress=(lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost))
+            if args.verbose else None,
         )
     except (ParamsError, BagError, CalibrationError, FileNotFoundError, json.JSONDecodeError) as exc:
         print(f"sclam calibrate: error: {exc}", file=sys.stderr)

@@ -1,0 +1,46 @@
+"""Shared by the benchmark scripts: simulate a recording, calibrate it, time it."""
+from __future__ import annotations
+
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sclam_ros.estimator import calibrate_keyframes
+from sclam_ros.offline import read_recording
+from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.sim import simulate
+
+
+def simulate_and_calibrate(robot, duration, seed, true_overrides=None, nominal_overrides=None,
+                           workdir=None, **sim_options):
+    """(truth, result, seconds spent calibrating) for one simulated recording."""
+    workdir = Path(workdir or tempfile.mkdtemp(prefix="sclam_bench_"))
+    out = workdir / f"{robot}_{seed}_{int(duration)}"
+    truth = simulate(out, robot=robot, duration=duration, seed=seed,
+                     true_overrides=true_overrides, overwrite=True, **sim_options)
+    params = SclamParams.from_yaml(out / "params.yaml")
+    if nominal_overrides:
+        params = params.with_calibration({**params.calibration(), **nominal_overrides})
+    start = time.perf_counter()
+    recording = read_recording(out, params)
+    result = calibrate_keyframes(recording.keyframes, params, recording.rejections)
+    return truth, result, time.perf_counter() - start, out
+
+
+def errors(truth, result):
+    return {k: result.estimate[k] - truth[k] for k in CALIBRATION_KEYS}
+
+
+def peak_rss_mb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def table(rows, header):
+    widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(header)]
+    line = "| " + " | ".join(str(h).ljust(w) for h, w in zip(header, widths)) + " |"
+    sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    body = ["| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths)) + " |" for r in rows]
+    return "\n".join([line, sep, *body])

@@ -1,0 +1,37 @@
+"""Acceptance 3 of the calibration issue: is the reported σ honest?
+
+Over N seeds, each parameter's error divided by its reported σ should have an RMS near 1
+(target: between 0.5 and 2).
+
+Run: .venv/bin/python bench/honest_sigma.py [--seeds 20] [--duration 120] [--robot powerbot]
+"""
+import argparse
+
+import numpy as np
+from common import errors, simulate_and_calibrate, table
+
+from sclam_ros.params import CALIBRATION_KEYS
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--duration", type=float, default=120.0)
+    ap.add_argument("--robot", default="powerbot")
+    args = ap.parse_args()
+    z = []
+    for seed in range(args.seeds):
+        truth, result, _, _ = simulate_and_calibrate(args.robot, args.duration, 100 + seed)
+        e = errors(truth, result)
+        z.append([e[k] / result.sigma[k] for k in CALIBRATION_KEYS])
+        print(f"seed {100 + seed}: err/σ " + " ".join(f"{v:+.2f}" for v in z[-1]), flush=True)
+    z = np.array(z)
+    rms = np.sqrt(np.mean(z**2, axis=0))
+    rows = [[k, f"{np.mean(z[:, i]):+.2f}", f"{rms[i]:.2f}", "yes" if 0.5 <= rms[i] <= 2 else "NO"]
+            for i, k in enumerate(CALIBRATION_KEYS)]
+    print(f"\n{args.robot}, {args.seeds} seeds × {args.duration:.0f} s:")
+    print(table(rows, ["parameter", "mean err/σ", "RMS err/σ", "0.5 ≤ RMS ≤ 2"]))
+
+
+if __name__ == "__main__":
+    main()
