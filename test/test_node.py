@@ -456,3 +456,14 @@ def test_launch_config_loads(path):
     doc = yaml.safe_load(path.read_text())
     assert "sclam" in doc or "/**" in doc
     assert params.wheel_radius_left > 0
+
+
+def test_node_takes_integer_numbers_from_a_params_file(graph):
+    """``ticks_per_revolution: 0`` is an integer in YAML; the double parameter accepts it."""
+    path = REPO / "launch_configs" / "turtlebot_radians.yaml"
+    raw = yaml.safe_load(path.read_text())["sclam"]["ros__parameters"]
+    assert isinstance(raw["ticks_per_revolution"], int)
+    node = graph.add(SclamNode(context=graph.context, parameter_overrides=[
+        Parameter(k, value=v) for k, v in raw.items()]))
+    assert node.params == SclamParams.from_yaml(path)
+    assert node.params.left_wheel_joint == "wheel_left_joint"
