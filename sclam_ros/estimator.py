@@ -11,13 +11,14 @@ import numpy as np
 from . import graph as graph_mod
 from .inputs import Rejections
 from .params import CALIBRATION_KEYS
-from .solver import marginal_covariance, solve_with_variance_components
+from . import factors
+from .solver import levenberg_marquardt, marginal_covariance, solve_with_variance_components
 
 MIN_KEYFRAMES = 10
 
 # A parameter whose posterior σ is more than this fraction of its prior σ was not
 # constrained by the data: the motion did not excite it.
-UNOBSERVED_SIGMA_RATIO = 0.5
+UNOBSERVED_SIGMA_RATIO = 0.1
 
 
 class CalibrationError(RuntimeError):
@@ -51,6 +52,20 @@ class CalibrationResult:
         return out
 
 
+PIN_SIGMA_RATIO = 1e-6  # a pinned parameter may move by this fraction of its prior σ
+
+
+def _pin(mask, nominal, prior_sigma):
+    """Priors holding the masked calibration parameters at nominal (the others: no pull)."""
+    weight = np.where(mask, (PIN_SIGMA_RATIO * prior_sigma) ** -2.0, 1e-12)
+    return [
+        factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(weight[:3]),
+                            angular=(False, False, False), name="pinned_calibration"),
+        factors.PriorFactor("laser", [0], [nominal[3:]], np.diag(weight[3:]),
+                            name="pinned_calibration"),
+    ]
+
+
 def residual_rms(problem, values) -> dict:
     out = {}
     for factor in problem.factors:
@@ -73,13 +88,25 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
             f"laser edges; both are needed. Rejections: {rejections or 'none'}"
         )
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+    prior_sigma = graph_mod.prior_sigmas(nominal)
     problem = graph_mod.build_problem(inputs, params, nominal)
     result, scales = solve_with_variance_components(problem, progress=progress)
+    cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+    observable = np.sqrt(np.diag(cov)) < UNOBSERVED_SIGMA_RATIO * prior_sigma
+    if not observable.all():
+        # A parameter the data cannot see would otherwise drift to fit noise (standing
+        # still, straight lines only). Pin it at nominal, re-solve the others, and report
+        # its σ as the prior's: "unknown", not a number that looks measured.
+        problem.factors.extend(_pin(~observable, nominal, prior_sigma))
+        problem.values = result.values
+        result = levenberg_marquardt(problem, progress=progress)
+        cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+        cov[~observable, :] = 0.0
+        cov[:, ~observable] = 0.0
+        cov[~observable, ~observable] = prior_sigma[~observable] ** 2
     values = result.values
     estimate = graph_mod.calibration_of(values)
-    cov = marginal_covariance(problem, values, ["odometry", "laser"])
     sigma = np.sqrt(np.diag(cov))
-    observable = sigma < UNOBSERVED_SIGMA_RATIO * graph_mod.prior_sigmas(nominal)
     if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(sigma)):
         raise CalibrationError("the solver produced a non-finite estimate; the data is degenerate")
     return CalibrationResult(

@@ -22,7 +22,7 @@ from .solver import CauchyKernel, Problem, Values
 # the report then flags as "not observable", instead of a singular matrix.
 PRIOR_SIGMA_RELATIVE_ODOMETRY = 0.25  # × nominal radius / base
 PRIOR_SIGMA_LASER_XY = 2.0  # m
-PRIOR_SIGMA_LASER_YAW = np.pi  # rad
+PRIOR_SIGMA_LASER_YAW = np.pi / 2  # rad
 
 # Robust kernel for scan matches in whitened units: an ICP that slid along a corridor is
 # a gross outlier and must not drag the calibration. Cauchy (not Huber): its influence

@@ -76,7 +76,7 @@ def refine(reference: ReferenceScan, points, z0):
         rotated = se2.rotate(z[2], q[ok])
         d_theta = n[:, 0] * -rotated[:, 1] + n[:, 1] * rotated[:, 0]
         jac = np.column_stack([n[:, 0], n[:, 1], d_theta])
-        weight = np.where(np.abs(residual) <= HUBER, 1.0, HUBER / np.abs(residual))
+        weight = np.minimum(1.0, HUBER / np.maximum(np.abs(residual), 1e-12))
         hessian = jac.T @ (weight[:, None] * jac)
         gradient = jac.T @ (weight * residual)
         try:
