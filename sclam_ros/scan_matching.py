@@ -138,12 +138,16 @@ class ScanMatcherConfig:
     source_voxel_factor: float = 1.5
     min_range: float = 0.0
     max_range: float = 30.0
-    max_points_per_voxel: int = 20
+    # The final z is refined point-to-line (frontend → point_to_line.py), so KISS-ICP only
+    # has to land close. Measured on a 120 s PowerBot recording (bias, σ of z after
+    # refinement unchanged to 0.01 mm): 20 points/voxel and 100 iterations 6.4 s CPU,
+    # 5 and 30: 5.0 s.
+    max_points_per_voxel: int = 5
     # Correspondence kernel σ (m). None = KISS-ICP's adaptive threshold; a float fixes it.
     fixed_threshold: Optional[float] = 0.1
     initial_threshold: float = 0.3
     min_motion_threshold: float = 0.01
-    max_iterations: int = 100
+    max_iterations: int = 30
     convergence: float = 1e-4
     max_threads: int = 1  # one scan is too small to gain from threads; leave cores to the solver
     min_points: int = 30  # fewer returns than this cannot constrain 3 DoF reliably

@@ -93,3 +93,37 @@ def test_standing_still_is_a_clear_error_not_a_nan(tmp_path):
         assert math.isfinite(result.estimate[key])
         assert not result.observable[key], key
         assert result.estimate[key] == pytest.approx(getattr(params, key), abs=1e-3)
+
+
+def test_straight_line_only_flags_what_it_cannot_see(tmp_path):
+    """Driving straight down a corridor excites no rotation: the wheel base and the laser
+    offset are not observable and must come back at nominal, flagged, finite."""
+    from sclam_ros import se2
+    from sclam_ros.sim.world import office_world
+
+    world = office_world()
+    angles = -np.pi + 2 * np.pi / 360 * np.arange(360)
+    radius, ticks, speed = 0.1, 4000.0, 0.4
+    mount = np.array([0.2, 0.0, 0.0])
+    rng = np.random.default_rng(1)
+    out = tmp_path / "straight"
+    with bag.BagWriter(out) as writer:
+        for i in range(50 * 40):  # 40 s at 50 Hz encoders
+            t = 1000.0 + 0.02 * i
+            travelled = speed * (t - 1000.0)
+            tick = math.floor(travelled / radius * ticks / (2 * np.pi))
+            writer.write_joint_state("/joint_states", t, ["left_wheel_joint", "right_wheel_joint"],
+                                     [float(tick), float(tick)])
+            if i % 5 == 2:
+                laser = se2.compose(np.array([2.0 + travelled, 7.75, 0.0]), mount)
+                ranges = world.raycast(laser, angles, 20.0) + rng.normal(0, 0.01, 360)
+                writer.write_scan("/scan", Scan(t, ranges, -np.pi, 2 * np.pi / 360, 0.05, 20.0))
+    params = SclamParams(ticks_per_revolution=ticks, wheel_radius_left=0.1, wheel_radius_right=0.1,
+                         wheel_base=0.5, laser_x=0.15)
+    recording = read_recording(out, params)
+    result = calibrate_keyframes(recording.keyframes, params, recording.rejections)
+    for key in CALIBRATION_KEYS:
+        assert math.isfinite(result.estimate[key]) and math.isfinite(result.sigma[key])
+    for key in ("wheel_base", "laser_x", "laser_y"):
+        assert not result.observable[key], key
+        assert result.estimate[key] == pytest.approx(getattr(params, key), abs=1e-6)
