@@ -12,7 +12,12 @@ from . import graph as graph_mod
 from .inputs import Rejections
 from .params import CALIBRATION_KEYS
 from . import factors
-from .solver import levenberg_marquardt, marginal_covariance, solve_with_variance_components
+from .solver import (
+    levenberg_marquardt,
+    marginal_covariance,
+    sandwich_covariance,
+    solve_with_variance_components,
+)
 
 MIN_KEYFRAMES = 10
 
@@ -29,7 +34,8 @@ class CalibrationError(RuntimeError):
 class CalibrationResult:
     estimate: dict  # the six parameters (m, rad)
     sigma: dict  # their marginal 1σ
-    covariance: np.ndarray  # (6, 6) joint marginal, CALIBRATION_KEYS order
+    covariance: np.ndarray  # (6, 6) reported (sandwich, see solver.sandwich_covariance)
+    model_covariance: np.ndarray  # (6, 6) H⁻¹ marginal under the noise model
     nominal: dict
     observable: dict  # name -> bool
     scans_used: int
@@ -64,6 +70,19 @@ def _pin(mask, nominal, prior_sigma):
         factors.PriorFactor("laser", [0], [nominal[3:]], np.diag(weight[3:]),
                             name="pinned_calibration"),
     ]
+
+
+# The sandwich σ is measured from the residuals and can be noisy; it may undercut the
+# model σ (correlated scan-match errors cancel) but never below this fraction of it.
+MIN_SANDWICH_TO_MODEL_SIGMA = 0.25
+
+
+def _floored(sandwich, model):
+    """Scale rows/columns of the sandwich covariance so no σ falls below the floor."""
+    floor = MIN_SANDWICH_TO_MODEL_SIGMA * np.sqrt(np.diag(model))
+    sigma = np.sqrt(np.diag(sandwich))
+    scale = np.where(sigma < floor, floor / np.maximum(sigma, 1e-300), 1.0)
+    return sandwich * np.outer(scale, scale)
 
 
 def residual_rms(problem, values) -> dict:
@@ -105,6 +124,12 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         cov[:, ~observable] = 0.0
         cov[~observable, ~observable] = prior_sigma[~observable] ** 2
     values = result.values
+    model_cov = cov
+    cov = _floored(sandwich_covariance(problem, values, ["odometry", "laser"]), model_cov)
+    if not observable.all():
+        cov[~observable, :] = 0.0
+        cov[:, ~observable] = 0.0
+        cov[~observable, ~observable] = prior_sigma[~observable] ** 2
     estimate = graph_mod.calibration_of(values)
     sigma = np.sqrt(np.diag(cov))
     if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(sigma)):
@@ -113,6 +138,7 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         estimate=graph_mod.as_dict(estimate),
         sigma=graph_mod.as_dict(sigma),
         covariance=cov,
+        model_covariance=model_cov,
         nominal=graph_mod.as_dict(nominal),
         observable={k: bool(o) for k, o in zip(CALIBRATION_KEYS, observable)},
         scans_used=inputs.size,

@@ -154,14 +154,15 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
         {"poses": poses, "odometry": [calibration[:3]], "laser": [calibration[3:]]},
         angular={"poses": [False, False, True], "laser": [False, False, True]},
     )
-    odo_cov = kinematics.motion_covariance(
-        inputs.odo_dphi, calibration[:3], params.wheel_noise, encoder_variance_floor(params),
-        params.lateral_noise,
-    )
+    floor = encoder_variance_floor(params)
+
+    def odometry_covariance(dphi, k):
+        return kinematics.motion_covariance(dphi, k, params.wheel_noise, floor, params.lateral_noise)
+
     sigma = prior_sigmas(nominal)
     factor_list = [
         factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
-                               np.linalg.inv(odo_cov)),
+                               covariance_model=odometry_covariance),
         factors.LaserFactor(inputs.laser_from, inputs.laser_to, inputs.laser_z, inputs.laser_info),
         factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(sigma[:3] ** -2.0),
                             angular=(False, False, False), name="calibration_prior"),

@@ -440,3 +440,57 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
         result = levenberg_marquardt(problem, progress=progress, **lm_options)
     problem.values = result.values
     return result, dict(problem.scales)
+
+
+def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1, lu=None):
+    """Heteroscedasticity- and autocorrelation-consistent covariance of the named blocks.
+
+    The model covariance H⁻¹ is right only if every edge's noise is independent with the
+    stated covariance. Scan matches are not: consecutive matches share a scan, so their
+    errors are correlated (measured lag-1 correlation ≈ −0.25 to −0.5), and H⁻¹
+    overstates the uncertainty of what averages over many edges. The sandwich estimator
+    H⁻¹ (Σ_t Σ_t' s_t s_t'ᵀ) H⁻¹, with s_t the summed scores J_eᵀ r_e of the measurement
+    edges ending at pose t, over pairs up to `lags` apart, measures the spread from the
+    residuals themselves. Pairwise scan matching makes the errors MA(1) (measured lag-1
+    correlation −0.41 to −0.47, lags ≥ 2 below 0.05), for which the truncated (uniform)
+    kernel at lag 1 is exact, where Newey-West's Bartlett weights would keep a third of
+    the variance that cancels. The truncated estimate need not be positive semidefinite:
+    negative eigenvalues are clipped to zero.
+    """
+    system = problem.linear_system(values)
+    if lu is None:
+        hessian, _ = _normal_equations(system)
+        lu = LinearSolver(hessian, problem.banded_size)
+    cols = np.concatenate([problem.layout.columns(name) for name in blocks])
+    unit = np.zeros((problem.layout.size, len(cols)))
+    unit[cols, np.arange(len(cols))] = 1.0
+    influence = system.jacobian @ lu.solve(unit)  # rows × p: J H⁻¹ E
+    # Scores of all measurement edges that end at the same pose are one time step's
+    # contribution: the odometry and the laser edge of an interval are fitted to the same
+    # pose difference, so their residuals are correlated and must be summed, not counted
+    # as independent.
+    n_time = max((int(f.pose_j.max()) + 1 for f in problem.factors
+                  if f.measurement and len(f) and hasattr(f, "pose_j")), default=0)
+    per_time = np.zeros((n_time, len(cols)))
+    meat = np.zeros((len(cols), len(cols)))
+    factor_rows = iter(system.row_ranges)
+    for factor in problem.factors:
+        if len(factor) == 0:
+            continue
+        name, start, stop = next(factor_rows)
+        if not factor.measurement:
+            continue
+        d = factor.edge_dim
+        scores = (influence[start:stop] * system.residual[start:stop, None]).reshape(-1, d, len(cols)).sum(1)
+        if hasattr(factor, "pose_j"):
+            np.add.at(per_time, factor.pose_j, scores)
+        else:  # no time order known: independent edges
+            meat += scores.T @ scores
+    meat += per_time.T @ per_time
+    for lag in range(1, lags + 1):
+        cross = per_time[:-lag].T @ per_time[lag:]
+        meat += cross + cross.T
+    meat = 0.5 * (meat + meat.T)
+    eigval, eigvec = np.linalg.eigh(meat)
+    meat = (eigvec * np.clip(eigval, 0.0, None)) @ eigvec.T
+    return 0.5 * (meat + meat.T)
