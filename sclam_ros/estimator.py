@@ -85,6 +85,27 @@ def _floored(sandwich, model):
     return sandwich * np.outer(scale, scale)
 
 
+def _unknown_as_prior(cov, observable, prior_sigma):
+    """Parameters the data did not determine get their prior σ and no correlations."""
+    cov = cov.copy()
+    cov[~observable, :] = 0.0
+    cov[:, ~observable] = 0.0
+    cov[~observable, ~observable] = prior_sigma[~observable] ** 2
+    return cov
+
+
+def excited_parameters(problem, prior_sigma) -> np.ndarray:
+    """Which calibration parameters the recorded motion constrains, judged at the start.
+
+    Observability is a property of the motion, not of one noise realisation: the marginal
+    σ of each parameter under the stated noise model at the nominal calibration, compared
+    with its (weak) prior σ. Judged at a fitted optimum instead, an unexcited parameter
+    can wander to a boundary where the curvature looks informative.
+    """
+    cov = marginal_covariance(problem, problem.values, ["odometry", "laser"])
+    return np.sqrt(np.diag(cov)) < UNOBSERVED_SIGMA_RATIO * prior_sigma
+
+
 def residual_rms(problem, values) -> dict:
     out = {}
     for factor in problem.factors:
@@ -109,27 +130,21 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     prior_sigma = graph_mod.prior_sigmas(nominal)
     problem = graph_mod.build_problem(inputs, params, nominal)
+    observable = excited_parameters(problem, prior_sigma)
+    if not observable.all():
+        # A parameter the motion does not excite (standing still, straight lines only)
+        # would drift to fit noise, and with it the noise models that depend on it. It is
+        # held at nominal and reported with its prior σ: "unknown", not a number that
+        # looks measured.
+        problem.factors.extend(_pin(~observable, nominal, prior_sigma))
     result, scales = solve_with_variance_components(problem, progress=progress)
     cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
-    observable = np.sqrt(np.diag(cov)) < UNOBSERVED_SIGMA_RATIO * prior_sigma
-    if not observable.all():
-        # A parameter the data cannot see would otherwise drift to fit noise (standing
-        # still, straight lines only). Pin it at nominal, re-solve the others, and report
-        # its σ as the prior's: "unknown", not a number that looks measured.
-        problem.factors.extend(_pin(~observable, nominal, prior_sigma))
-        problem.values = result.values
-        result = levenberg_marquardt(problem, progress=progress)
-        cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
-        cov[~observable, :] = 0.0
-        cov[:, ~observable] = 0.0
-        cov[~observable, ~observable] = prior_sigma[~observable] ** 2
     values = result.values
-    model_cov = cov
-    cov = _floored(sandwich_covariance(problem, values, ["odometry", "laser"]), model_cov)
-    if not observable.all():
-        cov[~observable, :] = 0.0
-        cov[:, ~observable] = 0.0
-        cov[~observable, ~observable] = prior_sigma[~observable] ** 2
+    model_cov = _unknown_as_prior(cov, observable, prior_sigma)
+    cov = _unknown_as_prior(
+        _floored(sandwich_covariance(problem, values, ["odometry", "laser"]), cov),
+        observable, prior_sigma,
+    )
     estimate = graph_mod.calibration_of(values)
     sigma = np.sqrt(np.diag(cov))
     if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(sigma)):

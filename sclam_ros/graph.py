@@ -50,6 +50,9 @@ def encoder_variance_floor(params) -> float:
     return tick**2 / 6.0
 
 
+# Radii and base may not fall below this fraction of nominal: a step there is rejected.
+MIN_ODOMETRY_FRACTION = 0.1
+
 # Gate for trusting a scan match over the wheels when building the initial guess: generous
 # (a nominal calibration may be a few % off), but far below an ICP failure.
 INIT_GATE_M = 0.05
@@ -153,6 +156,8 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
     values = Values(
         {"poses": poses, "odometry": [calibration[:3]], "laser": [calibration[3:]]},
         angular={"poses": [False, False, True], "laser": [False, False, True]},
+        # Radii and wheel base are physical lengths: the solver never steps through zero.
+        lower={"odometry": MIN_ODOMETRY_FRACTION * calibration[:3]},
     )
     floor = encoder_variance_floor(params)
 

@@ -65,23 +65,29 @@ class CauchyKernel:
 class Values(dict):
     """Named blocks of variables, each an array (count, dim), plus which columns are angles."""
 
-    def __init__(self, blocks=None, angular=None):
+    def __init__(self, blocks=None, angular=None, lower=None):
         super().__init__()
         self.angular = {}
+        self.lower = {}
         for name, value in (blocks or {}).items():
-            self.add(name, value, (angular or {}).get(name))
+            self.add(name, value, (angular or {}).get(name), (lower or {}).get(name))
 
-    def add(self, name, value, angular=None):
+    def add(self, name, value, angular=None, lower=None):
+        """A block; `lower` bounds its columns from below (a step crossing it is rejected)."""
         value = np.array(value, float, ndmin=2)
         self[name] = value
         if angular is None:
             angular = np.zeros(value.shape[1], bool)
         self.angular[name] = np.asarray(angular, bool)
+        self.lower[name] = None if lower is None else np.asarray(lower, float)
+
+    def within_bounds(self) -> bool:
+        return all(low is None or np.all(self[name] > low) for name, low in self.lower.items())
 
     def copy(self):
         out = Values()
         for name, value in self.items():
-            out.add(name, value.copy(), self.angular[name])
+            out.add(name, value.copy(), self.angular[name], self.lower[name])
         return out
 
     def retract(self, layout, delta):
@@ -295,6 +301,18 @@ def _solve_damped(problem, hessian, gradient, damping):
     return delta if np.all(np.isfinite(delta)) else None
 
 
+def _cost_or_inf(problem, values) -> float:
+    """The cost, or inf where the model is not defined (a step so long that a noise model
+    turned singular, e.g. a wheel base through zero): such a step is simply rejected."""
+    if not values.within_bounds():
+        return math.inf
+    try:
+        cost = problem.cost(values)
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError):
+        return math.inf
+    return cost if math.isfinite(cost) else math.inf
+
+
 def _normal_equations(system: System):
     jac = system.jacobian
     hessian = (jac.T @ jac).tocsc()
@@ -325,7 +343,7 @@ def levenberg_marquardt(
             delta = _solve_damped(problem, hessian, gradient, damping)
             if delta is not None:
                 candidate = values.retract(problem.layout, delta)
-                new_cost = problem.cost(candidate)
+                new_cost = _cost_or_inf(problem, candidate)
                 if new_cost < cost:
                     accepted = True
                     break
