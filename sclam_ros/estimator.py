@@ -121,7 +121,8 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
             f"{MIN_KEYFRAMES}); check the topic names, joint names and that the clocks of "
             f"both sensors overlap. Rejections: {rejections or 'none'}"
         )
-    inputs = graph_mod.GraphInputs.from_keyframes(keyframes)
+    inputs = graph_mod.GraphInputs.from_keyframes(
+        graph_mod.merge_keyframes(keyframes, params.keyframe_interval))
     if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
         raise CalibrationError(
             f"the graph has {len(inputs.odo_from)} odometry and {len(inputs.laser_from)} "
@@ -156,7 +157,7 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         model_covariance=model_cov,
         nominal=graph_mod.as_dict(nominal),
         observable={k: bool(o) for k, o in zip(CALIBRATION_KEYS, observable)},
-        scans_used=inputs.size,
+        scans_used=len(keyframes),
         duration_s=float(inputs.stamps[-1] - inputs.stamps[0]),
         residual_rms=residual_rms(problem, values),
         variance_scales={k: v for k, v in scales.items()},

@@ -112,6 +112,14 @@ class SclamParams:
         _positive,
         "m/sqrt(m)",
     )
+    keyframe_interval: float = _param(
+        0.5,
+        "graph edges span this long: consecutive scans are merged (wheel increments add, scan "
+        "matches compose). Long edges keep the regression-dilution bias of the wheel base "
+        "small (see graph.merge_keyframes); 0 = one keyframe per scan",
+        _non_negative,
+        "s",
+    )
     # --- scan matching --------------------------------------------------------------
     scan_voxel_size: float = _param(
         0.05, "KISS-ICP voxel size for planar indoor scans", _positive, "m"

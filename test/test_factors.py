@@ -71,26 +71,3 @@ def test_sqrt_information_reconstructs_information():
     root = factors.sqrt_information(info)
     assert np.allclose(np.swapaxes(root, -1, -2) @ root, info)
 
-
-def test_odometry_factor_with_k_dependent_covariance_whitened_jacobian():
-    """With the covariance a function of k, the solver forms L(k)·J; it must equal the
-    derivative of the whitened residual L(k)·e(k) (errors-in-variables form)."""
-    values = random_values()
-    dphi = rng.normal(0, 2, (5, 2))
-
-    def cov_model(d, k):
-        return kinematics.motion_covariance(d, k, 0.02, 1e-8, 0.002)
-
-    f = factors.OdometryFactor(np.arange(5), np.arange(1, 6), dphi, covariance_model=cov_model)
-    lin = f.linearize(values)
-    k0 = values["odometry"][0].copy()
-
-    def whitened(k):
-        perturbed = values.copy()
-        perturbed["odometry"][0] = k
-        out = f.linearize(perturbed)
-        return np.einsum("mij,mj->mi", out.sqrt_information, out.residual)
-
-    numeric = central_difference(whitened, k0)  # (m, 3, 3)
-    analytic = np.einsum("mij,mjk->mik", lin.sqrt_information, lin.blocks[2].jacobian)
-    assert np.allclose(analytic, numeric, rtol=1e-5, atol=1e-6)

@@ -1,0 +1,42 @@
+"""Graph construction: merged keyframes keep every measurement."""
+import numpy as np
+import pytest
+
+from sclam_ros import se2
+from sclam_ros.frontend import Keyframe
+from sclam_ros.graph import merge_keyframes
+
+
+def chain(n, rng, broken=()):
+    kfs = [Keyframe(0, 0.0, np.zeros(2))]
+    for i in range(1, n):
+        kf = Keyframe(i, 0.1 * i, np.zeros(2), dphi=rng.normal(0.3, 0.1, 2))
+        if i not in broken:
+            kf.laser_from, kf.laser_motion = i - 1, rng.normal(0, 0.05, 3)
+            kf.laser_information = np.eye(3) * 1e4
+        kfs.append(kf)
+    return kfs
+
+
+def test_merging_adds_wheel_angles_and_composes_scan_matches():
+    rng = np.random.default_rng(0)
+    kfs = chain(21, rng)
+    merged = merge_keyframes(kfs, 0.5)
+    assert [m.stamp for m in merged] == pytest.approx([0.0, 0.5, 1.0, 1.5, 2.0])
+    assert np.allclose(sum(m.dphi for m in merged[1:]), sum(k.dphi for k in kfs[1:]))
+    z = np.zeros(3)
+    for k in kfs[1:6]:
+        z = se2.compose(z, k.laser_motion)
+    assert np.allclose(merged[1].laser_motion, z)
+    assert np.allclose(np.linalg.inv(merged[1].laser_information), 5e-4 * np.eye(3))
+
+
+def test_a_missing_scan_match_is_not_bridged():
+    rng = np.random.default_rng(1)
+    kfs = chain(21, rng, broken={7})
+    merged = merge_keyframes(kfs, 0.5)
+    # Wheel increments are all there: their sum is unchanged.
+    assert np.allclose(sum(m.dphi for m in merged[1:]), sum(k.dphi for k in kfs[1:]))
+    # The interval containing scan 7 carries no laser edge; all others do.
+    no_laser = [m for m in merged[1:] if m.laser_motion is None]
+    assert len(no_laser) == 1 and no_laser[0].stamp == pytest.approx(0.7)
