@@ -1,0 +1,411 @@
+"""Residual diagnosis: is the calibrated model enough, and if not, which effect is missing?
+
+    base fit → residual tests (whiteness, dependence on regressors)
+             → each library effect: fit base+effect, judged on held-out time blocks
+             → refit with the selected effects → what is still unexplained
+
+Selection never rests on the in-sample cost (an extra parameter always lowers it). An
+effect is selected only if (1) it lowers the held-out error of time-block
+cross-validation: the calibration and effect are fitted on all but one contiguous block of
+the recording, and the laser-vs-odometry disagreement of the held-out block's edges is
+scored, and (2) its likelihood-ratio statistic on the whole recording clears the BIC
+penalty dim·ln(edges).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from . import graph as graph_mod
+from . import kinematics, se2
+from .effects import LIBRARY, EffectData
+from .effects.model import EffectLaserFactor, EffectOdometryFactor, extend_problem
+from .estimator import _pin, calibrate_keyframes, residual_rms
+from .params import CALIBRATION_KEYS
+from .solver import levenberg_marquardt, marginal_covariance, solve_with_variance_components
+
+ERROR_METRIC = (
+    "held-out mean negative log-likelihood per edge (nats, constant dropped) of the "
+    "laser-vs-odometry disagreement d = (l⁻¹ ∘ K(u; k, effects) ∘ l) ⊖ z of the edges of "
+    "each held-out time block ({folds}-fold contiguous-block cross-validation, calibration "
+    "and effects fitted on the other blocks): 0.5·(ρ(dᵀΣ⁻¹d) + ln det Σ), Σ the fitted "
+    "odometry + scan-match covariance in the laser frame, ρ the graph's Cauchy kernel (c = 3)"
+)
+
+CAUCHY_C = 3.0
+# Effects tried by default. scan_distortion (z scaled by 1 + c) is left out: a common scale
+# of all scan matches is confounded with the wheel radii and base (measured on a
+# simulated run with no distortion: c = −6.5 % with both radii −6.5 %, broken only by the
+# laser lever arm), so it "explains" whatever the radii leave.
+DEFAULT_CANDIDATES = ("time_offset", "lateral_slip", "radius_drift", "floor_noise")
+FOLDS = 5
+# Residual-regressor dependence counts as structure when its rank correlation is this
+# strong and significant after a Bonferroni correction over all tests at this level.
+MIN_STRENGTH = 0.2
+ALPHA = 0.01
+LJUNG_BOX_LAGS = 10
+
+
+@dataclass
+class Fit:
+    problem: object
+    values: object
+    scales: dict
+    cost: float
+
+
+# --- edges, regressors, residual tests ------------------------------------------------
+
+
+@dataclass
+class Edges:
+    """Edges with both an odometry and a chained laser measurement (the scored ones)."""
+
+    odo_index: np.ndarray  # into inputs.odo_*
+    laser_index: np.ndarray  # into inputs.laser_*
+    pose_i: np.ndarray
+    pose_j: np.ndarray
+
+
+def paired_edges(inputs) -> Edges:
+    laser_of = {(int(a), int(b)): n for n, (a, b) in enumerate(zip(inputs.laser_from, inputs.laser_to))}
+    odo, las = [], []
+    for n, a in enumerate(inputs.odo_from):
+        m = laser_of.get((int(a), int(a) + 1))
+        if m is not None:
+            odo.append(n)
+            las.append(m)
+    odo, las = np.array(odo, int), np.array(las, int)
+    return Edges(odo, las, inputs.odo_from[odo], inputs.odo_from[odo] + 1)
+
+
+def regressors(inputs, data: EffectData, wheel_angles, k, poses) -> dict:
+    """Candidate explanations per odometry edge, name -> (m_o,) array."""
+    i, j = inputs.odo_from, inputs.odo_from + 1
+    t = data.stamps
+    dt = np.maximum(t[j] - t[i], 1e-3)
+    s, theta = kinematics.arc_length_and_rotation(inputs.odo_dphi, k)
+    v, w = s / dt, theta / dt
+    mid = 0.5 * (t[i] + t[j])
+    order = np.argsort(mid)
+    accel = np.zeros_like(v)
+    alpha = np.zeros_like(w)
+    if len(v) > 2:
+        accel[order] = np.gradient(v[order], mid[order])
+        alpha[order] = np.gradient(w[order], mid[order])
+    r = np.asarray(k, float)
+    body_w = (data.wheel_speeds[:, 1] * r[1] - data.wheel_speeds[:, 0] * r[0]) / r[2]
+    pos = 0.5 * (poses[i, :2] + poses[j, :2])
+    return {
+        "v": v,
+        "omega": w,
+        "abs_omega": np.abs(w),
+        "v_times_omega": v * w,
+        "acceleration": accel,
+        "angular_acceleration": alpha,
+        "wheel_speed_change": body_w[j] - body_w[i],  # what an encoder/laser clock offset scales
+        "time": mid - t[0],
+        "distance": np.cumsum(np.abs(s)),
+        "x": pos[:, 0],
+        "y": pos[:, 1],
+        "wheel_angle_left": np.sin(wheel_angles[j, 0]),
+        "wheel_angle_right": np.sin(wheel_angles[j, 1]),
+    }
+
+
+def ljung_box(series, lags=LJUNG_BOX_LAGS):
+    """(Q, p) of the Ljung-Box test of no autocorrelation up to `lags`."""
+    x = np.asarray(series, float) - np.mean(series)
+    n = len(x)
+    lags = min(lags, n // 4)
+    denom = float(np.dot(x, x))
+    if lags < 1 or denom <= 0:
+        return 0.0, 1.0
+    rho = np.array([np.dot(x[:-h], x[h:]) / denom for h in range(1, lags + 1)])
+    q = n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1)))
+    return float(q), float(stats.chi2.sf(q, lags))
+
+
+def residual_tests(residuals: dict, regs: dict, edge_of: dict) -> list:
+    """Dependence of every residual component on every regressor, and whiteness.
+
+    residuals: component name -> (m,) values; edge_of: component name -> (m,) index into
+    the regressor arrays. Strength is |Spearman ρ| (robust to the odd failed scan match);
+    p its two-sided p-value. Whiteness: Ljung-Box over the first 10 lags (regressor "lag").
+    """
+    out = []
+    for comp, res in residuals.items():
+        idx = edge_of[comp]
+        for name, reg in regs.items():
+            x = reg[idx]
+            if np.ptp(x) == 0 or len(x) < 10:
+                continue
+            rho, p = stats.spearmanr(x, res)
+            if np.isfinite(rho):
+                out.append({"component": comp, "regressor": name, "strength": float(abs(rho)),
+                            "p_value": float(p)})
+        q, p = ljung_box(res)
+        n = len(res)
+        out.append({"component": comp, "regressor": "lag", "strength": float(
+            np.sqrt(q / max(n, 1))), "p_value": p})
+    return out
+
+
+def significant(tests: list) -> list:
+    threshold = ALPHA / max(len(tests), 1)
+    keep = [t for t in tests if t["p_value"] < threshold
+            and (t["regressor"] == "lag" or t["strength"] >= MIN_STRENGTH)]
+    return sorted(keep, key=lambda t: -t["strength"])
+
+
+# --- fitting ----------------------------------------------------------------------------
+
+
+def _component_residuals(problem, values, edges: Edges):
+    """Whitened residual components (the stated noise grows with the wheel angle turned,
+    so raw residuals would correlate with speed through their spread alone) of the scored edges, name -> (m,), all indexed like edges."""
+    out = {}
+    for f in problem.factors:
+        if f.name in ("odometry", "laser") and len(f):
+            lin = f.linearize(values)
+            r = np.einsum("mij,mj->mi", lin.sqrt_information, lin.residual)
+            pick = edges.odo_index if f.name == "odometry" else edges.laser_index
+            for c, axis in enumerate(("x", "y", "theta")):
+                out[f"{f.name}.{axis}"] = r[pick, c]
+    return out
+
+
+def _subset(inputs, keep_pose_edges):
+    """GraphInputs with only the edges whose both poses satisfy the mask."""
+    o = keep_pose_edges[inputs.odo_from] & keep_pose_edges[inputs.odo_from + 1]
+    la = keep_pose_edges[inputs.laser_from] & keep_pose_edges[inputs.laser_to]
+    return graph_mod.GraphInputs(inputs.stamps, inputs.odo_from[o], inputs.odo_dphi[o],
+                                 inputs.laser_from[la], inputs.laser_to[la], inputs.laser_z[la],
+                                 inputs.laser_info[la])
+
+
+def _fit_base(inputs, params, nominal, observable, prior_sigma, poses=None) -> Fit:
+    problem = graph_mod.build_problem(inputs, params, nominal, poses=poses)
+    if not observable.all():
+        problem.factors.extend(_pin(~observable, nominal, prior_sigma))
+    result, scales = solve_with_variance_components(problem)
+    return Fit(problem, result.values, scales, result.final_cost)
+
+
+def _fit_effects(base: Fit, effects, variance_components=False) -> Fit:
+    problem = extend_problem(base.problem, effects)
+    problem.values = problem.values.copy()
+    for name in base.values:
+        problem.values[name] = base.values[name].copy()
+    problem.scales = dict(base.scales)
+    if variance_components:
+        result, scales = solve_with_variance_components(problem)
+    else:
+        result, scales = levenberg_marquardt(problem), dict(base.scales)
+    return Fit(problem, result.values, scales, result.final_cost)
+
+
+# --- held-out scoring ---------------------------------------------------------------------
+
+
+def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=None):
+    """Per-edge negative log-likelihood of the laser-vs-odometry disagreement."""
+    values = fit.values
+    mech = [e for e in effects if e.kind != "noise"]
+    oi, li = edges.odo_index, edges.laser_index
+    odo = EffectOdometryFactor(edges.pose_i, edges.pose_j, inputs.odo_dphi[oi],
+                               np.tile(np.eye(3), (len(oi), 1, 1)), mech)
+    las = EffectLaserFactor(edges.pose_i, edges.pose_j, inputs.laser_z[li],
+                            inputs.laser_info[li], mech)
+    motion, _, _ = odo.predicted_motion_with_jacobians(values)
+    z, _ = las.corrected_z(values)
+    mount = values["laser"][0]
+    a, _, a_m = se2.compose_with_jacobians(motion, mount)[0], None, se2.compose_with_jacobians(motion, mount)[1]
+    linv = se2.inverse(mount)
+    zp, _, zp_a = se2.compose_with_jacobians(np.broadcast_to(linv, a.shape), a)
+    d, d_zp, d_z = se2.between_with_jacobians(zp, z)
+    j_m = d_zp @ zp_a @ a_m
+    cov_o = odo_cov[oi] * fit.scales.get("odometry", 1.0)
+    if noise is not None:
+        cov_o = cov_o * noise.scale_of(edges.pose_i, edges.pose_j)[:, None, None]
+    cov_z = np.linalg.inv(inputs.laser_info[li]) * fit.scales.get("laser", 1.0)
+    cov = j_m @ cov_o @ np.swapaxes(j_m, 1, 2) + d_z @ cov_z @ np.swapaxes(d_z, 1, 2)
+    sq = np.einsum("mi,mij,mj->m", d, np.linalg.inv(cov), d)
+    rho = CAUCHY_C**2 * np.log1p(sq / CAUCHY_C**2)
+    return 0.5 * (rho + np.linalg.slogdet(cov)[1])
+
+
+def _odometry_whitened_sq(fit: Fit, edges: Edges):
+    f = next(f for f in fit.problem.factors if f.name == "odometry")
+    lin = f.linearize(fit.values)
+    w = np.einsum("mij,mj->mi", lin.sqrt_information, lin.residual)
+    pick = np.searchsorted(f.pose_i, edges.pose_i)
+    return np.sum(w[pick] ** 2, -1) / fit.scales.get("odometry", 1.0)
+
+
+# --- the diagnosis ---------------------------------------------------------------------------
+
+
+@dataclass
+class Diagnosis:
+    report: dict  # the JSON
+    residuals_before: dict = field(repr=False, default=None)
+    residuals_after: dict = field(repr=False, default=None)
+    regressors: dict = field(repr=False, default=None)
+    edge_of: dict = field(repr=False, default=None)
+    tests_before: list = field(repr=False, default=None)
+    tests_after: list = field(repr=False, default=None)
+
+
+def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progress=None) -> Diagnosis:
+    say = progress or (lambda message: None)
+    names = list(effect_names or DEFAULT_CANDIDATES)
+    say("fitting the base model")
+    base_result = calibrate_keyframes(keyframes, params)
+    merged = graph_mod.merge_keyframes(keyframes, params.keyframe_interval)
+    inputs = base_result.inputs
+    problem = base_result.problem
+    base = Fit(problem, problem.values, dict(problem.scales), problem.cost(problem.values))
+    nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+    prior_sigma = graph_mod.prior_sigmas(nominal)
+    observable = np.array([base_result.observable[k] for k in CALIBRATION_KEYS])
+    data = EffectData.from_keyframes(keyframes, inputs.stamps, positions=base.values["poses"][:, :2])
+    wheel_angles = np.array([kf.wheel_angles for kf in merged], float).reshape(-1, 2)
+    edges = paired_edges(inputs)
+    odo_cov = kinematics.motion_covariance(inputs.odo_dphi, nominal[:3], params.wheel_noise,
+                                           graph_mod.encoder_variance_floor(params),
+                                           params.lateral_noise)
+    regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0], base.values["poses"])
+    odo_pos = {int(a): n for n, a in enumerate(inputs.odo_from)}
+    edge_reg = np.array([odo_pos[int(a)] for a in edges.pose_i], int)
+    before = _component_residuals(problem, base.values, edges)
+    edge_of = {c: edge_reg for c in before}
+    tests_before = residual_tests(before, regs, edge_of)
+
+    # Whole-recording fits: values, σ and the likelihood-ratio statistic (base scales).
+    n_edges = len(inputs.odo_from) + len(inputs.laser_from)
+    candidates = {}
+    for name in names:
+        effect = LIBRARY[name](data)
+        if effect.kind == "noise":
+            sq = _odometry_whitened_sq(base, edges)
+            scales = effect.fit(edges.pose_i, edges.pose_j, sq)
+            lam = effect.scale_of(edges.pose_i, edges.pose_j)
+            lr = float(np.sum(sq - sq / lam - 3.0 * np.log(lam)))
+            candidates[name] = dict(effect=effect, value=effect.value(), sigma=None, lr=lr,
+                                    dim=effect.dim, scales=scales)
+            continue
+        say(f"fitting base + {name}")
+        fit = _fit_effects(base, [effect])
+        cov = marginal_covariance(fit.problem, fit.values, [name])
+        p = fit.values[name][0]
+        pick = int(np.argmax(np.abs(p))) if effect.dim > 1 else 0
+        candidates[name] = dict(effect=effect, value=effect.value(p), sigma=float(np.sqrt(cov[pick, pick])),
+                                lr=float(base.cost - fit.cost), dim=effect.dim, params=p.tolist())
+
+    # Held-out evaluation: contiguous time blocks.
+    say(f"{folds}-fold time-block cross-validation")
+    blocks = np.array_split(np.arange(inputs.size), folds)
+    nll = {"base": [], **{n: [] for n in names}}
+    for block in blocks:
+        held = np.zeros(inputs.size, bool)
+        held[block] = True
+        test = held[edges.pose_j] & held[edges.pose_i]
+        if not test.any():
+            continue
+        sub_edges = Edges(edges.odo_index[test], edges.laser_index[test], edges.pose_i[test],
+                          edges.pose_j[test])
+        train = _fit_base(_subset(inputs, ~held), params, nominal, observable, prior_sigma,
+                          poses=base.values["poses"])
+        nll["base"].append(edge_nll(train, [], inputs, sub_edges, odo_cov))
+        train_edges = Edges(*(a[~held[edges.pose_j] & ~held[edges.pose_i]] for a in
+                              (edges.odo_index, edges.laser_index, edges.pose_i, edges.pose_j)))
+        for name in names:
+            effect = LIBRARY[name](data)
+            if effect.kind == "noise":
+                effect.fit(train_edges.pose_i, train_edges.pose_j, _odometry_whitened_sq(train, train_edges))
+                nll[name].append(edge_nll(train, [], inputs, sub_edges, odo_cov, noise=effect))
+            else:
+                fit = _fit_effects(train, [effect])
+                nll[name].append(edge_nll(fit, [effect], inputs, sub_edges, odo_cov))
+    error = {key: float(np.mean(np.concatenate(v))) for key, v in nll.items()}
+    # Paired comparison on the same held-out edges: the standard error of the gain.
+    per_edge_base = np.concatenate(nll["base"])
+
+    effects_json, selected = [], []
+    for name in names:
+        c = candidates[name]
+        gain = per_edge_base - np.concatenate(nll[name])
+        bic = c["dim"] * np.log(n_edges)
+        chosen = bool(gain.mean() > 0 and c["lr"] > bic)
+        if chosen:
+            selected.append(name)
+        effects_json.append({
+            "name": name, "selected": chosen, "value": c["value"], "sigma": c["sigma"],
+            "evidence": {
+                "heldout_error": error[name], "heldout_error_base": error["base"],
+                "heldout_gain_per_edge": float(gain.mean()),
+                "heldout_gain_stderr": float(gain.std(ddof=1) / np.sqrt(len(gain))),
+                "likelihood_ratio": c["lr"], "bic_penalty": float(bic),
+                "units": LIBRARY[name].units,
+                **({"params": c["params"]} if "params" in c else {}),
+            },
+        })
+
+    # The extended model: all selected effects together, and its own held-out error.
+    say("refitting with the selected effects: " + (", ".join(selected) or "none"))
+    mech = [LIBRARY[n](data) for n in selected if LIBRARY[n].kind != "noise"]
+    noise_sel = [candidates[n]["effect"] for n in selected if LIBRARY[n].kind == "noise"]
+    if selected:
+        ext = _fit_effects(base, mech, variance_components=True) if mech else base
+        ext_nll = []
+        for block in blocks:
+            held = np.zeros(inputs.size, bool)
+            held[block] = True
+            test = held[edges.pose_j] & held[edges.pose_i]
+            if not test.any():
+                continue
+            sub = Edges(edges.odo_index[test], edges.laser_index[test], edges.pose_i[test], edges.pose_j[test])
+            train = _fit_base(_subset(inputs, ~held), params, nominal, observable, prior_sigma,
+                              poses=base.values["poses"])
+            fit = _fit_effects(train, mech) if mech else train
+            noise = None
+            if noise_sel:
+                noise = LIBRARY["floor_noise"](data)
+                tr = Edges(*(a[~held[edges.pose_j] & ~held[edges.pose_i]] for a in
+                             (edges.odo_index, edges.laser_index, edges.pose_i, edges.pose_j)))
+                noise.fit(tr.pose_i, tr.pose_j, _odometry_whitened_sq(train, tr))
+            ext_nll.append(edge_nll(fit, mech, inputs, sub, odo_cov, noise=noise))
+        ext_error = float(np.mean(np.concatenate(ext_nll)))
+        for e in effects_json:  # final values from the joint fit
+            if e["selected"] and e["name"] in ext.values:
+                p = ext.values[e["name"]][0]
+                cov = marginal_covariance(ext.problem, ext.values, [e["name"]])
+                pick = int(np.argmax(np.abs(p))) if len(p) > 1 else 0
+                e["value"] = LIBRARY[e["name"]](data).value(p)
+                e["sigma"] = float(np.sqrt(cov[pick, pick]))
+    else:
+        ext, ext_error = base, error["base"]
+    after = _component_residuals(ext.problem, ext.values, edges)
+    tests_after = residual_tests(after, regs, edge_of)
+
+    def summary(fit, err):
+        rms = residual_rms(fit.problem, fit.values)
+        return {
+            "params": graph_mod.as_dict(graph_mod.calibration_of(fit.values)),
+            "residual_rms": {k: [float(x) for x in v] for k, v in rms.items()
+                             if k in ("odometry", "laser")},
+            "error": err,
+        }
+
+    report = {
+        "base": summary(base, error["base"]),
+        "extended": summary(ext, ext_error),
+        "error_metric": ERROR_METRIC.format(folds=folds),
+        "effects": effects_json,
+        "unexplained": [{k: t[k] for k in ("component", "regressor", "strength")}
+                        for t in significant(tests_after)],
+    }
+    return Diagnosis(report, before, after, regs, edge_of, tests_before, tests_after)

@@ -1,0 +1,91 @@
+"""What every model extension shares: per-pose data, hooks into the odometry/laser models.
+
+An effect is a small parameter block (named after the effect, shape (1, dim)) estimated
+in the same graph as the poses and the calibration. It bends the model through hooks,
+each returning its value and its Jacobians so the factors can chain them:
+
+- ``adjust_dphi(dphi, p, i, j)``  → dφ', ∂dφ'/∂dφ (m,2,2), ∂dφ'/∂p (m,2,d): the wheel
+  increments the model should use (clock offset);
+- ``adjust_k(k, p, i, j)``        → k_e (m,3), ∂k_e/∂k (m,3,3), ∂k_e/∂p (m,3,d): per-edge
+  wheel parameters (radius drift);
+- ``motion_term(dphi, k_e, p, i, j)`` → Δm (m,3), ∂Δm/∂dφ (m,3,2), ∂Δm/∂k_e (m,3,3),
+  ∂Δm/∂p (m,3,d): motion the wheels do not see, added to K (lateral slip);
+- ``adjust_z(z, p, i, j)``        → z', ∂z'/∂p (m,3,d): the scan match corrected
+  (scan distortion).
+
+A hook an effect does not override is the identity. ``i``/``j`` are the edges' pose
+indices, through which an effect reads its per-pose data (stamps, wheel speeds, ...).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class EffectData:
+    """Per-pose quantities the effects may read (all indexed by graph pose)."""
+
+    stamps: np.ndarray  # (n,) s
+    wheel_speeds: np.ndarray  # (n, 2) rad/s, wheel angular speeds at the pose's stamp
+    positions: np.ndarray = None  # (n, 2) m, fitted positions (noise regions)
+
+    @property
+    def reference_time(self) -> float:
+        """Mid-run: drift parameters are centred here, so the radii are the run's mean."""
+        return 0.5 * (self.stamps[0] + self.stamps[-1])
+
+    @classmethod
+    def from_keyframes(cls, raw_keyframes, stamps, positions=None):
+        """Wheel speeds at the graph's stamps by central differences of the raw keyframes'
+        cumulative wheel angles (one keyframe per scan, so ±1 scan period)."""
+        raw_t = np.array([kf.stamp for kf in raw_keyframes], float)
+        raw_phi = np.array([kf.wheel_angles for kf in raw_keyframes], float).reshape(-1, 2)
+        if len(raw_t) >= 2:
+            speeds = np.gradient(raw_phi, raw_t, axis=0)
+        else:
+            speeds = np.zeros_like(raw_phi)
+        stamps = np.asarray(stamps, float)
+        omega = np.column_stack([np.interp(stamps, raw_t, speeds[:, c]) for c in range(2)])
+        return cls(stamps, omega, None if positions is None else np.asarray(positions, float))
+
+
+class ModelEffect:
+    """Base class: identity hooks. Subclasses set the class attributes and override hooks."""
+
+    name = ""
+    dim = 1
+    units = ""  # of the parameter(s), for the report
+    doc = ""
+    # Which edge model the effect bends: "odometry", "laser" or "noise" (a noise model,
+    # estimated from residuals rather than by least squares).
+    kind = "odometry"
+    # 1σ of the weak zero-mean prior that keeps an unexcited effect well-posed.
+    prior_sigma = 1.0
+
+    def __init__(self, data: EffectData):
+        self.data = data
+
+    def initial(self) -> np.ndarray:
+        return np.zeros(self.dim)
+
+    def adjust_dphi(self, dphi, p, i, j):
+        m = len(dphi)
+        return dphi, np.broadcast_to(np.eye(2), (m, 2, 2)), np.zeros((m, 2, self.dim))
+
+    def adjust_k(self, k, p, i, j):
+        m = len(k)
+        return k, np.broadcast_to(np.eye(3), (m, 3, 3)), np.zeros((m, 3, self.dim))
+
+    def motion_term(self, dphi, k, p, i, j):
+        m = len(dphi)
+        return (np.zeros((m, 3)), np.zeros((m, 3, 2)), np.zeros((m, 3, 3)),
+                np.zeros((m, 3, self.dim)))
+
+    def adjust_z(self, z, p, i, j):
+        return z, np.zeros((len(z), 3, self.dim))
+
+    def value(self, p) -> float:
+        """The one number reported for the effect (its first parameter by default)."""
+        return float(np.asarray(p).ravel()[0])

@@ -1,0 +1,88 @@
+"""Effect factors: Jacobians against central differences, identity at zero, the graph
+recovers an injected effect from synthetic edges."""
+import numpy as np
+import pytest
+from numdiff import central_difference
+
+from sclam_ros import kinematics, se2
+from sclam_ros.effects import LIBRARY, EffectData
+from sclam_ros.effects.model import EffectLaserFactor, EffectOdometryFactor
+from sclam_ros.factors import LaserFactor, OdometryFactor
+from sclam_ros.solver import Values
+
+rng = np.random.default_rng(7)
+N = 6
+
+
+def data():
+    stamps = np.cumsum(rng.uniform(0.3, 0.6, N))
+    return EffectData(stamps, rng.normal(0, 3, (N, 2)), rng.normal(0, 5, (N, 2)))
+
+
+def values_with(effects, p=None):
+    poses = np.column_stack([rng.normal(0, 3, (N, 2)), rng.uniform(-3, 3, N)])
+    v = Values({"poses": poses, "odometry": [[0.12, 0.13, 0.55]], "laser": [[0.22, -0.05, 0.4]]},
+               angular={"poses": [False, False, True], "laser": [False, False, True]})
+    for e in effects:
+        v.add(e.name, [rng.normal(0, 0.1, e.dim) if p is None else p[e.name]])
+    return v
+
+
+def check(factor, values):
+    lin = factor.linearize(values)
+    for jb in lin.blocks:
+        for edge, row in enumerate(jb.rows):
+            def residual_of(var, edge=edge, row=row, block=jb.block):
+                perturbed = values.copy()
+                perturbed[block][row] = var
+                return factor.linearize(perturbed).residual[edge]
+
+            numeric = central_difference(residual_of, values[jb.block][row])
+            assert np.allclose(jb.jacobian[edge], numeric, atol=1e-6), (factor.name, jb.block)
+
+
+@pytest.mark.parametrize("names", [["time_offset"], ["lateral_slip"], ["radius_drift"],
+                                   ["time_offset", "lateral_slip", "radius_drift"]])
+def test_odometry_effect_jacobians(names):
+    d = data()
+    effects = [LIBRARY[n](d) for n in names]
+    values = values_with(effects)
+    dphi = rng.normal(0, 2, (N - 1, 2))
+    f = EffectOdometryFactor(np.arange(N - 1), np.arange(1, N), dphi,
+                             np.tile(np.eye(3), (N - 1, 1, 1)), effects)
+    check(f, values)
+
+
+def test_scan_distortion_jacobians():
+    d = data()
+    effects = [LIBRARY["scan_distortion"](d)]
+    values = values_with(effects)
+    z = np.column_stack([rng.normal(0, 1, (N - 1, 2)), rng.uniform(-1, 1, N - 1)])
+    f = EffectLaserFactor(np.arange(N - 1), np.arange(1, N), z, np.tile(np.eye(3), (N - 1, 1, 1)),
+                          effects)
+    check(f, values)
+
+
+def test_zero_effects_reduce_to_base_factors():
+    d = data()
+    effects = [LIBRARY[n](d) for n in ("time_offset", "lateral_slip", "radius_drift",
+                                       "scan_distortion")]
+    values = values_with(effects, {e.name: np.zeros(e.dim) for e in effects})
+    dphi = rng.normal(0, 2, (N - 1, 2))
+    info = np.tile(np.eye(3), (N - 1, 1, 1))
+    ext = EffectOdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info, effects)
+    base = OdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info)
+    assert np.allclose(ext.residuals(values), base.residuals(values), atol=1e-14)
+    z = rng.normal(0, 1, (N - 1, 3))
+    assert np.allclose(EffectLaserFactor(np.arange(N - 1), np.arange(1, N), z, info, effects)
+                       .residuals(values),
+                       LaserFactor(np.arange(N - 1), np.arange(1, N), z, info).residuals(values))
+
+
+def test_wheel_speeds_from_keyframes():
+    from sclam_ros.frontend import Keyframe
+
+    t = np.arange(0, 2, 0.1)
+    kfs = [Keyframe(i, s, np.array([3.0 * s, -2.0 * s])) for i, s in enumerate(t)]
+    d = EffectData.from_keyframes(kfs, t[::5])
+    assert np.allclose(d.wheel_speeds, [[3.0, -2.0]] * 4)
