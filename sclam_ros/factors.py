@@ -75,10 +75,13 @@ class OdometryFactor(Factor):
 
     name = "odometry"
 
-    def __init__(self, pose_i, pose_j, dphi, information):
+    def __init__(self, pose_i, pose_j, dphi, information, parts=None):
+        """dphi (m, 2): wheel increments of each edge; parts (m, n, 2), optional: the same
+        split into consecutive sub-intervals (zero-padded), composed arc by arc."""
         self.pose_i = np.asarray(pose_i, int)
         self.pose_j = np.asarray(pose_j, int)
         self.dphi = np.asarray(dphi, float).reshape(-1, 2)
+        self.parts = None if parts is None else np.asarray(parts, float).reshape(len(self.dphi), -1, 2)
         self.information = np.asarray(information, float).reshape(-1, 3, 3)
         self._sqrt_info = sqrt_information(self.information)
 
@@ -86,17 +89,22 @@ class OdometryFactor(Factor):
         return len(self.pose_i)
 
     def predicted_motion(self, k):
-        return kinematics.forward(self.dphi, k)
+        return self._motion_and_jacobian(k)[0]
+
+    def _motion_and_jacobian(self, k):
+        if self.parts is None:
+            return kinematics.forward(self.dphi, k), kinematics.jacobian_k(self.dphi, k)
+        return kinematics.forward_composed(self.parts, k)
 
     def linearize(self, values) -> Linearization:
         poses = values["poses"]
         k = values["odometry"][0]
-        motion = kinematics.forward(self.dphi, k)
+        motion, d_motion_k = self._motion_and_jacobian(k)
         pose_delta, d_delta_j, d_delta_i = se2.between_with_jacobians(
             poses[self.pose_j], poses[self.pose_i]
         )
         residual, d_res_delta, d_res_motion = se2.between_with_jacobians(pose_delta, motion)
-        d_res_k = d_res_motion @ kinematics.jacobian_k(self.dphi, k)
+        d_res_k = d_res_motion @ d_motion_k
         zeros = np.zeros(len(self), int)
         return Linearization(
             residual,

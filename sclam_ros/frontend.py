@@ -35,6 +35,7 @@ class Keyframe:
     stamp: float  # s
     wheel_angles: np.ndarray  # (2,) rad, cumulative, at the scan stamp
     dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
+    dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to
     laser_motion: Optional[np.ndarray] = None  # z: laser_j ⊖ laser_from, in that frame
     laser_information: Optional[np.ndarray] = None  # (3, 3)

@@ -6,6 +6,7 @@ model.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -71,6 +72,7 @@ class GraphInputs:
     laser_to: np.ndarray
     laser_z: np.ndarray  # (m_l, 3)
     laser_info: np.ndarray  # (m_l, 3, 3)
+    odo_parts: Optional[np.ndarray] = None  # (m_o, n, 2) per-scan increments, zero-padded
 
     @classmethod
     def from_keyframes(cls, keyframes, first_index=None):
@@ -81,7 +83,15 @@ class GraphInputs:
         las = [(kf.laser_from - first, kf.index - first, kf.laser_motion, kf.laser_information)
                for kf in keyframes
                if kf.laser_motion is not None and kf.laser_from - first >= 0]
+        parts = None
+        if any(getattr(kf, "dphi_parts", None) is not None for kf in keyframes):
+            chunks = [kf.dphi_parts if getattr(kf, "dphi_parts", None) is not None else kf.dphi[None]
+                      for kf in keyframes if kf.dphi is not None and kf.index - first - 1 >= 0]
+            parts = np.zeros((len(chunks), max(len(c) for c in chunks), 2))
+            for row, chunk in enumerate(chunks):
+                parts[row, : len(chunk)] = chunk
         return cls(
+            odo_parts=parts,
             stamps=np.array([kf.stamp for kf in keyframes]),
             odo_from=np.array([o[0] for o in odo], int),
             odo_dphi=np.array([o[1] for o in odo], float).reshape(-1, 2),
@@ -119,7 +129,8 @@ def merge_keyframes(keyframes, interval: float) -> list:
     def flush():
         kf = Keyframe(len(merged), segment[-1].stamp, segment[-1].wheel_angles)
         if all(s.dphi is not None for s in segment):
-            kf.dphi = np.sum([s.dphi for s in segment], axis=0)
+            kf.dphi_parts = np.array([s.dphi for s in segment])
+            kf.dphi = kf.dphi_parts.sum(axis=0)
         laser = [s for s in segment if s.laser_motion is not None]
         if len(laser) == len(segment) and all(s.laser_from == s.index - 1 for s in segment):
             z, cov = np.zeros(3), np.zeros((3, 3))
@@ -158,7 +169,8 @@ def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
     k, mount = calibration[:3], calibration[3:]
     motion = np.zeros((inputs.size, 3))
     known = np.zeros(inputs.size, bool)
-    motion[inputs.odo_from + 1] = kinematics.forward(inputs.odo_dphi, k)
+    motion[inputs.odo_from + 1] = (kinematics.forward(inputs.odo_dphi, k) if inputs.odo_parts is None
+                                   else kinematics.forward_composed(inputs.odo_parts, k)[0])
     known[inputs.odo_from + 1] = True
     chained = inputs.laser_from == inputs.laser_to - 1
     to = inputs.laser_to[chained]
@@ -212,7 +224,7 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
     sigma = prior_sigmas(nominal)
     factor_list = [
         factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
-                               np.linalg.inv(odometry_covariance)),
+                               np.linalg.inv(odometry_covariance), parts=inputs.odo_parts),
         factors.LaserFactor(inputs.laser_from, inputs.laser_to, inputs.laser_z, inputs.laser_info),
         factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(sigma[:3] ** -2.0),
                             angular=(False, False, False), name="calibration_prior"),

@@ -86,6 +86,27 @@ def jacobian_u(dphi, k):
     return _jacobian_from_partials(s, theta, ds, dtheta)
 
 
+def forward_composed(parts, k):
+    """K over consecutive sub-intervals composed, K(u₁) ⊕ K(u₂) ⊕ ..., and ∂/∂k.
+
+    parts: (..., n, 2) wheel increments of the sub-intervals (zero rows are identity
+    motions, so ragged edges can be padded). One arc over a long edge assumes constant
+    curvature; composing the per-scan arcs keeps the model exact when the curvature
+    changes within the edge (S-curves, accelerations).
+    """
+    from . import se2  # local: se2 does not depend on kinematics, but keep the layering visible
+
+    parts = np.asarray(parts, float)
+    k = np.asarray(k, float)
+    motion = forward(parts[..., 0, :], k)
+    jac = jacobian_k(parts[..., 0, :], k)
+    for s in range(1, parts.shape[-2]):
+        step = forward(parts[..., s, :], k)
+        motion, j_acc, j_step = se2.compose_with_jacobians(motion, step)
+        jac = j_acc @ jac + j_step @ jacobian_k(parts[..., s, :], k)
+    return motion, jac
+
+
 def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0):
     """Covariance (..., 3, 3) of K(u, k): wheel-angle noise plus sideways slip.
 

@@ -71,3 +71,12 @@ def test_sqrt_information_reconstructs_information():
     root = factors.sqrt_information(info)
     assert np.allclose(np.swapaxes(root, -1, -2) @ root, info)
 
+
+
+def test_odometry_factor_with_sub_interval_parts_jacobians():
+    values = random_values()
+    parts = rng.normal(0.5, 0.4, (5, 4, 2))
+    parts[2, 3] = 0.0  # padding
+    f = factors.OdometryFactor(np.arange(5), np.arange(1, 6), parts.sum(1),
+                               np.tile(np.eye(3), (5, 1, 1)), parts=parts)
+    check_factor_jacobians(f, values)

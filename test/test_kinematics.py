@@ -62,3 +62,18 @@ def test_vectorised_equals_single():
 def test_motion_covariance_positive_definite_even_standing_still():
     cov = kinematics.motion_covariance(np.array([[0.0, 0.0], [1.0, 1.2]]), K, 0.02)
     assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def test_composed_arcs_match_fine_integration_and_jacobian():
+    from numdiff import central_difference
+
+    parts = np.array([[1.0, 1.4], [1.2, 0.6], [0.0, 0.0], [0.9, 1.0]])  # an S-curve, padded
+    motion, jac = kinematics.forward_composed(parts, K)
+    pose = np.zeros(3)
+    for p in parts:
+        pose = se2.compose(pose, integrate_finely(p, K, steps=2000))
+    assert np.allclose(motion, pose, atol=1e-7)
+    # Not the single arc of the summed increments: that assumes constant curvature.
+    assert not np.allclose(motion, kinematics.forward(parts.sum(0), K), atol=1e-3)
+    numeric = central_difference(lambda k: kinematics.forward_composed(parts, k)[0], K)
+    assert np.allclose(jac, numeric, atol=1e-7)
