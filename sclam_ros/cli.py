@@ -11,6 +11,7 @@ COMMANDS = {
     "simulate": "Write a simulated rosbag2 recording with ground truth",
     "play": "Publish a rosbag2 recording on the live ROS graph with its original timing",
     "convert": "Convert a published real-robot log (breezyslam, optiodom) to rosbag2 + params.yaml",
+    "diagnose": "Test the calibrated model's residuals and select missing effects on held-out data",
 }
 
 
