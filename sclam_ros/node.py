@@ -345,8 +345,9 @@ class SclamNode(Node):
             "joint_states_received": self.received["joint_states"],
             "scans_received": self.received["scan"],
             "last_solve_converged": "n/a" if estimate is None else str(bool(estimate.converged)).lower(),
-            # The window solver does not report its residuals yet.
-            "residual_rms": "n/a",
+            "residual_rms": "n/a" if estimate is None or not estimate.residual_rms else "; ".join(
+                f"{name} " + " ".join(f"{v:.3g}" for v in rms)
+                for name, rms in sorted(estimate.residual_rms.items())) + " (m, m, rad)",
             "rejected_total": self.rejections.total(),
         }
         level, message = DiagnosticStatus.WARN, "no estimate yet: drive the robot"

@@ -1,17 +1,22 @@
 """Online calibration: a sliding window for the wheel radii, accumulated priors for the rest.
 
 Scheme (issue: the online node):
-  - The graph holds the keyframes of the last `window_distance` metres travelled (and at
-    most MAX_WINDOW_KEYFRAMES, so standing still cannot grow it). The wheel radii are
-    estimated from this window only: when a load compresses the tyres, the old data
-    leaves the window and stops pulling.
+  - Arriving keyframes (one per scan) are merged into `params.keyframe_interval` chunks
+    before they enter the window, exactly as the batch calibrator merges them
+    (graph.merge_keyframes): the same long edges, so the same small regression-dilution
+    bias of the wheel base, and ~5× fewer poses to solve for.
+  - The window holds the merged keyframes of the last `window_distance` metres travelled,
+    and at most MAX_WINDOW_KEYFRAMES of them, so standing still cannot grow it: the cost
+    of a solve is bounded whatever the robot does. The wheel radii are estimated from this
+    window only: when a load compresses the tyres, the old data leaves the window and stops
+    pulling.
   - The wheel base and the laser pose do not drift; the information the leaving keyframes
-    held about them is kept. Leaving keyframes are marginalised: their edges are
+    held about them is kept. Leaving keyframes are marginalised in chunks: their edges are
     linearised at the current estimate and everything but (b, l) — their poses and the
-    radii they were driven with — is integrated out (a Schur complement), giving a 4×4
-    Gaussian that is added to the prior on (b, l). Information adds up; the cost of the
-    window stays constant.
-  - Every `solve_every` keyframes the window is re-solved by LM, warm-started.
+    radii they were driven with — is integrated out (a Schur complement of the information
+    AND of the gradient), giving a 4×4 Gaussian that is added to the prior on (b, l).
+    Information adds up; the cost of the window stays constant.
+  - Every `solve_every` merged keyframes the window is re-solved by LM.
 """
 from __future__ import annotations
 
@@ -21,15 +26,19 @@ from typing import Optional
 
 import numpy as np
 
-from . import factors, graph as graph_mod, kinematics
-from .frontend import Frontend
+from . import factors, graph as graph_mod, kinematics, se2
+from .frontend import Frontend, Keyframe
 from .inputs import Rejections
 from .params import CALIBRATION_KEYS
-from .solver import Problem, levenberg_marquardt, marginal_covariance
+from .solver import levenberg_marquardt, marginal_covariance
 
-MAX_WINDOW_KEYFRAMES = 3000
-# Keyframes are marginalised in chunks: one dense Schur complement per chunk of this size.
-MARGINALISE_BATCH = 30
+# Bound on the merged keyframes in the window (0.5 s each by default: 200 s). Reached only
+# when the robot crawls or stands still; then the oldest keyframes leave by count.
+MAX_WINDOW_KEYFRAMES = 400
+# Leaving keyframes are marginalised in chunks: one dense Schur complement per chunk.
+MARGINALISE_BATCH = 20
+# Fewer keyframes than this in the window: no solve (too little to say anything).
+MIN_WINDOW_KEYFRAMES = 6
 SLOW_KEYS = ("wheel_base", "laser_x", "laser_y", "laser_yaw")
 
 
@@ -44,6 +53,8 @@ class Estimate:
     keyframes_in_window: int
     window_distance: float  # m covered by the window
     converged: bool = True
+    # edge type ("odometry", "laser") -> (3,) RMS of the raw residuals (m, m, rad)
+    residual_rms: dict = field(default_factory=dict)
 
     def vector(self):
         return np.array([self.values[k] for k in CALIBRATION_KEYS])
@@ -56,9 +67,9 @@ class _Slow:
     information: np.ndarray = field(default_factory=lambda: np.zeros((4, 4)))
     eta: np.ndarray = field(default_factory=lambda: np.zeros(4))  # information vector
 
-    def add(self, info, mean):
+    def add(self, info, eta):
         self.information = self.information + info
-        self.eta = self.eta + info @ mean
+        self.eta = self.eta + eta
 
     def mean(self, fallback):
         if np.linalg.matrix_rank(self.information) < 4:
@@ -66,15 +77,64 @@ class _Slow:
         return np.linalg.solve(self.information, self.eta)
 
 
+class KeyframeMerger:
+    """graph.merge_keyframes, one keyframe at a time, with running indices.
+
+    Feed per-scan keyframes in order; get back merged keyframes as each chunk of
+    `interval` seconds closes (or early, at a broken edge, so gaps stay gaps).
+    """
+
+    def __init__(self, interval: float):
+        self.interval = float(interval)
+        self.reset()
+
+    def reset(self):
+        self._last = None  # the last merged keyframe
+        self._segment = []
+        self._count = 0
+
+    def add(self, kf) -> list:
+        if self._last is None:
+            self._last = Keyframe(self._count, kf.stamp, kf.wheel_angles)
+            self._count += 1
+            return [self._last]
+        out = []
+        complete = (kf.dphi is not None and kf.laser_motion is not None
+                    and kf.laser_from == kf.index - 1)
+        if self._segment and not complete:
+            out.append(self._flush())
+        self._segment.append(kf)
+        if not complete or kf.stamp - self._last.stamp >= self.interval - 1e-9:
+            out.append(self._flush())
+        return out
+
+    def _flush(self):
+        segment = self._segment
+        kf = Keyframe(self._count, segment[-1].stamp, segment[-1].wheel_angles)
+        if all(s.dphi is not None for s in segment):
+            kf.dphi = np.sum([s.dphi for s in segment], axis=0)
+        if all(s.laser_motion is not None and s.laser_from == s.index - 1 for s in segment):
+            z, cov = np.zeros(3), np.zeros((3, 3))
+            for s in segment:
+                z = se2.compose(z, s.laser_motion)
+                cov += np.linalg.inv(s.laser_information)
+            kf.laser_from, kf.laser_motion, kf.laser_information = self._count - 1, z, np.linalg.inv(cov)
+        self._count += 1
+        self._last = kf
+        self._segment = []
+        return kf
+
+
 class OnlineCalibrator:
     """Feeds on encoder samples and scans in arrival order; keeps an up-to-date Estimate."""
 
-    def __init__(self, params, rejections: Optional[Rejections] = None, solve_every: int = 10):
+    def __init__(self, params, rejections: Optional[Rejections] = None, solve_every: int = 2):
         self.params = params
         self.rejections = rejections if rejections is not None else Rejections()
         self.solve_every = solve_every
         self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
         self.frontend = Frontend(params, self.rejections)
+        self.merger = KeyframeMerger(params.keyframe_interval)
         self.reset_calibration()
 
     # --- user actions -------------------------------------------------------------------
@@ -100,25 +160,30 @@ class OnlineCalibrator:
 
     # --- data -----------------------------------------------------------------------------
     def add_encoder(self, stamp, left_raw, right_raw) -> Optional[Estimate]:
-        return self._consume(self.frontend.add_encoder(stamp, left_raw, right_raw))
+        return self.add_keyframes(self.frontend.add_encoder(stamp, left_raw, right_raw))
 
     def add_scan(self, scan) -> Optional[Estimate]:
-        return self._consume(self.frontend.add_scan(scan))
+        return self.add_keyframes(self.frontend.add_scan(scan))
 
-    def _consume(self, keyframes) -> Optional[Estimate]:
+    def add_keyframes(self, keyframes) -> Optional[Estimate]:
+        """Per-scan keyframes from `self.frontend` (e.g. via offline.iter_keyframes)."""
         updated = None
-        for kf in keyframes:
-            self.window.append(kf)
-            travelled = 0.0
-            if kf.dphi is not None:
-                s, _ = kinematics.arc_length_and_rotation(kf.dphi, self.calibration[:3])
-                travelled = abs(float(s))
-            self._distance.append(travelled)
-            self._trim()
-            self._since_solve += 1
-            if self._since_solve >= self.solve_every and len(self.window) >= 10:
-                updated = self.solve()
+        for raw in keyframes:
+            for kf in self.merger.add(raw):
+                self._append(kf)
+                if self._since_solve >= self.solve_every and len(self.window) >= MIN_WINDOW_KEYFRAMES:
+                    updated = self.solve() or updated
         return updated
+
+    def _append(self, kf) -> None:
+        self.window.append(kf)
+        travelled = 0.0
+        if kf.dphi is not None:
+            s, _ = kinematics.arc_length_and_rotation(kf.dphi, self.calibration[:3])
+            travelled = abs(float(s))
+        self._distance.append(travelled)
+        self._trim()
+        self._since_solve += 1
 
     def window_length(self) -> float:
         return float(sum(self._distance))
@@ -135,12 +200,14 @@ class OnlineCalibrator:
         if len(self._leaving) >= MARGINALISE_BATCH:
             self._marginalise(self._leaving)
             # The last leaving keyframe stays as the start of the next chunk so the edges
-            # between chunks are not lost.
+            # between chunks are not lost (each edge is counted in exactly one chunk: the
+            # edge into the window's first keyframe is not in the window's graph).
             self._leaving = [self._leaving[-1]]
 
     # --- estimation -----------------------------------------------------------------------
     def _problem(self, keyframes, prior_slow=True):
-        inputs = graph_mod.GraphInputs.from_keyframes(list(keyframes))
+        keyframes = list(keyframes)
+        inputs = graph_mod.GraphInputs.from_keyframes(keyframes)
         extra = []
         if prior_slow and np.linalg.matrix_rank(self.slow.information) == 4:
             extra.append(_SlowPrior(self.slow))
@@ -151,28 +218,38 @@ class OnlineCalibrator:
     def _marginalise(self, leaving) -> None:
         """Keep what the leaving keyframes knew about (b, l): a Schur complement.
 
-        H of the leaving edges alone, linearised at the current estimate, over (poses, k, l);
-        everything but (b, l) is integrated out: Λ = H_ss − H_sr H_rr⁺ H_rs. A short chunk
-        alone cannot determine its radii, so H_rr may be singular: the pseudo-inverse keeps
+        H = JᵀJ and g = Jᵀr of the leaving edges alone, linearised at x₀ = (the
+        current calibration, poses chained from the scan matches, which are close to their
+        optimum), over (poses, k, l); everything but s = (b, l) is integrated out:
+            Λ = H_ss − H_sr H_rr⁺ H_rs,   g' = g_s − H_sr H_rr⁺ g_r,
+        a Gaussian with information Λ and information vector η = Λ s₀ − g' (its mean is
+        the chunk's own Gauss-Newton optimum for s, not the current estimate: without g'
+        the prior would only echo the estimate it was taken at). A short chunk alone
+        cannot determine its radii, so H_rr may be singular: the pseudo-inverse keeps
         exactly the information that is there and no more.
         """
         inputs, problem = self._problem(leaving, prior_slow=False)
         if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
             return
         problem.factors = [f for f in problem.factors if f.measurement]
-        jac = problem.linear_system(problem.values).jacobian.toarray()
+        system = problem.linear_system(problem.values)
+        jac = system.jacobian.toarray()
         hessian = jac.T @ jac
+        gradient = jac.T @ system.residual
         layout = problem.layout
         odo_cols = layout.columns("odometry")
         slow = np.concatenate([odo_cols[2:], layout.columns("laser")])
         rest = np.setdiff1d(np.arange(layout.size), slow)
-        h_rr = hessian[np.ix_(rest, rest)]
         h_sr = hessian[np.ix_(slow, rest)]
-        info = hessian[np.ix_(slow, slow)] - h_sr @ np.linalg.pinv(h_rr, hermitian=True) @ h_sr.T
+        h_rr_pinv = np.linalg.pinv(hessian[np.ix_(rest, rest)], hermitian=True)
+        info = hessian[np.ix_(slow, slow)] - h_sr @ h_rr_pinv @ h_sr.T
         info = 0.5 * (info + info.T)
-        self.slow.add(info, self.calibration[2:])
+        reduced_gradient = gradient[slow] - h_sr @ h_rr_pinv @ gradient[rest]
+        self.slow.add(info, info @ self.calibration[2:] - reduced_gradient)
 
     def solve(self) -> Optional[Estimate]:
+        from .estimator import residual_rms  # estimator imports nothing of the window
+
         self._since_solve = 0
         inputs, problem = self._problem(self.window)
         if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
@@ -194,6 +271,7 @@ class OnlineCalibrator:
             keyframes_in_window=len(self.window),
             window_distance=self.window_length(),
             converged=result.converged,
+            residual_rms=residual_rms(problem, result.values),
         )
         return self.estimate
 

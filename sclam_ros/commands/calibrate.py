@@ -27,6 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--report", metavar="DIR", help="write figures (trajectories, residuals) here")
     parser.add_argument("--truth", metavar="truth.json",
                         help="true values (e.g. from `sclam simulate`) to print beside the estimate")
+    parser.add_argument("--track", metavar="OUT.csv",
+                        help="instead of the batch solve, run the online calibrator of sclam_node "
+                             "(sliding window) over the recording as fast as it can and write its "
+                             "estimates over time: t (s, header stamp), the six parameters and "
+                             "sigma_<name> for each")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument("--verbose", action="store_true", help="log every solver iteration")
 
@@ -54,6 +59,59 @@ def format_table(result, truth=None) -> str:
     return "\n".join(lines)
 
 
+TRACK_COLUMNS = ("t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEYS))
+
+
+def track(bag, params, progress=None):
+    """Feed a recording through the node's OnlineCalibrator in record order.
+
+    Returns (rows, calibrator): one row per window solve, in TRACK_COLUMNS order.
+    """
+    from sclam_ros.offline import iter_keyframes
+    from sclam_ros.window import OnlineCalibrator
+
+    calibrator = OnlineCalibrator(params)
+    rows = []
+    for keyframe in iter_keyframes(bag, params, calibrator.frontend, progress):
+        estimate = calibrator.add_keyframes([keyframe])
+        if estimate is not None:
+            rows.append([estimate.stamp, *(estimate.values[k] for k in CALIBRATION_KEYS),
+                         *(estimate.sigma[k] for k in CALIBRATION_KEYS)])
+    return rows, calibrator
+
+
+def write_track(path, rows) -> None:
+    from sclam_ros.params import atomic_write_text
+
+    lines = [",".join(TRACK_COLUMNS)]
+    lines += [f"{row[0]:.6f}," + ",".join(f"{v:.9g}" for v in row[1:]) for row in rows]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _run_track(args, params, truth) -> int:
+    from types import SimpleNamespace
+
+    from sclam_ros.progress import ProgressBar
+
+    rows, calibrator = track(args.bag, params, ProgressBar("online calibration", not args.quiet))
+    if calibrator.rejections.total():
+        log.warning("rejected input (counted, not used): %s", calibrator.rejections)
+    write_track(args.track, rows)
+    estimate = calibrator.estimate
+    if estimate is None:
+        print("sclam calibrate: error: the online calibrator produced no estimate (too little "
+              "motion, or no scans paired with encoder data)", file=sys.stderr)
+        return 2
+    print(f"online: {len(rows)} window solves, window {estimate.window_distance:.1f} m "
+          f"({estimate.keyframes_in_window} keyframes); last estimate at t = {estimate.stamp:.3f} s")
+    shown = SimpleNamespace(estimate=estimate.values, sigma=estimate.sigma,
+                            nominal=dict(zip(CALIBRATION_KEYS, map(float, calibrator.nominal))),
+                            observable={k: True for k in CALIBRATION_KEYS})
+    print(format_table(shown, truth))
+    print(f"track: {args.track}")
+    return 0
+
+
 def run(args) -> int:
     from sclam_ros.bag import BagError
     from sclam_ros.estimator import CalibrationError, calibrate_keyframes
@@ -64,6 +122,8 @@ def run(args) -> int:
     try:
         params = SclamParams.from_yaml(args.params)
         truth = json.loads(Path(args.truth).read_text()) if args.truth else None
+        if args.track:
+            return _run_track(args, params, truth)
         recording = read_recording(args.bag, params,
                                    progress=ProgressBar("reading + scan matching", not args.quiet))
         if recording.rejections.total():
