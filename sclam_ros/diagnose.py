@@ -111,8 +111,14 @@ def regressors(inputs, data: EffectData, wheel_angles, k, poses) -> dict:
         "distance": np.cumsum(np.abs(s)),
         "x": pos[:, 0],
         "y": pos[:, 1],
-        "wheel_angle_left": np.sin(wheel_angles[j, 0]),
-        "wheel_angle_right": np.sin(wheel_angles[j, 1]),
+        # A radius varying once per wheel revolution, r·(1 + a·sin(φ + c)), changes an
+        # edge's wheel rotation by ≈ a·(cos(φ_j + c) − cos(φ_i + c)): a combination of these
+        # two differences per wheel, whatever the (unknown) phase c.
+        "wheel_angle_left": np.sin(wheel_angles[j, 0]) - np.sin(wheel_angles[i, 0]),
+        "wheel_angle_left_cos": np.cos(wheel_angles[j, 0]) - np.cos(wheel_angles[i, 0]),
+        "wheel_angle_right": np.sin(wheel_angles[j, 1]) - np.sin(wheel_angles[i, 1]),
+        "wheel_angle_right_cos": np.cos(wheel_angles[j, 1]) - np.cos(wheel_angles[i, 1]),
+        "speed_squared": v * np.abs(v),  # forward slip growing with speed
     }
 
 
@@ -187,7 +193,8 @@ def _subset(inputs, keep_pose_edges):
     la = keep_pose_edges[inputs.laser_from] & keep_pose_edges[inputs.laser_to]
     return graph_mod.GraphInputs(inputs.stamps, inputs.odo_from[o], inputs.odo_dphi[o],
                                  inputs.laser_from[la], inputs.laser_to[la], inputs.laser_z[la],
-                                 inputs.laser_info[la])
+                                 inputs.laser_info[la],
+                                 odo_parts=None if inputs.odo_parts is None else inputs.odo_parts[o])
 
 
 def _fit_base(inputs, params, nominal, observable, prior_sigma, poses=None) -> Fit:
@@ -220,7 +227,8 @@ def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=None):
     mech = [e for e in effects if e.kind != "noise"]
     oi, li = edges.odo_index, edges.laser_index
     odo = EffectOdometryFactor(edges.pose_i, edges.pose_j, inputs.odo_dphi[oi],
-                               np.tile(np.eye(3), (len(oi), 1, 1)), mech)
+                               np.tile(np.eye(3), (len(oi), 1, 1)), mech,
+                               parts=None if inputs.odo_parts is None else inputs.odo_parts[oi])
     las = EffectLaserFactor(edges.pose_i, edges.pose_j, inputs.laser_z[li],
                             inputs.laser_info[li], mech)
     motion, _, _ = odo.predicted_motion_with_jacobians(values)

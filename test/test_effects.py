@@ -41,15 +41,25 @@ def check(factor, values):
             assert np.allclose(jb.jacobian[edge], numeric, atol=1e-6), (factor.name, jb.block)
 
 
+def merged_parts():
+    """Per-scan increments of merged edges: ragged (zero-padded), curvature changing."""
+    parts = rng.normal(0, 0.6, (N - 1, 4, 2))
+    parts[1, 3] = 0.0
+    parts[3, 2:] = 0.0
+    return parts
+
+
+@pytest.mark.parametrize("merged", [False, True])
 @pytest.mark.parametrize("names", [["time_offset"], ["lateral_slip"], ["radius_drift"],
                                    ["time_offset", "lateral_slip", "radius_drift"]])
-def test_odometry_effect_jacobians(names):
+def test_odometry_effect_jacobians(names, merged):
     d = data()
     effects = [LIBRARY[n](d) for n in names]
     values = values_with(effects)
-    dphi = rng.normal(0, 2, (N - 1, 2))
+    parts = merged_parts() if merged else None
+    dphi = parts.sum(1) if merged else rng.normal(0, 2, (N - 1, 2))
     f = EffectOdometryFactor(np.arange(N - 1), np.arange(1, N), dphi,
-                             np.tile(np.eye(3), (N - 1, 1, 1)), effects)
+                             np.tile(np.eye(3), (N - 1, 1, 1)), effects, parts=parts)
     check(f, values)
 
 
@@ -63,20 +73,45 @@ def test_scan_distortion_jacobians():
     check(f, values)
 
 
-def test_zero_effects_reduce_to_base_factors():
+@pytest.mark.parametrize("merged", [False, True])
+def test_zero_effects_reduce_to_base_factors(merged):
     d = data()
     effects = [LIBRARY[n](d) for n in ("time_offset", "lateral_slip", "radius_drift",
                                        "scan_distortion")]
     values = values_with(effects, {e.name: np.zeros(e.dim) for e in effects})
-    dphi = rng.normal(0, 2, (N - 1, 2))
+    parts = merged_parts() if merged else None
+    dphi = parts.sum(1) if merged else rng.normal(0, 2, (N - 1, 2))
     info = np.tile(np.eye(3), (N - 1, 1, 1))
-    ext = EffectOdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info, effects)
-    base = OdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info)
-    assert np.allclose(ext.residuals(values), base.residuals(values), atol=1e-14)
+    ext = EffectOdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info, effects, parts=parts)
+    base = OdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info, parts=parts)
+    assert np.allclose(ext.residuals(values), base.residuals(values), rtol=0, atol=1e-14)
+    lin_e, lin_b = ext.linearize(values), base.linearize(values)
+    for jb in lin_b.blocks:
+        je = next(b for b in lin_e.blocks if b.block == jb.block and np.array_equal(b.rows, jb.rows))
+        assert np.allclose(je.jacobian, jb.jacobian, atol=1e-14)
+    if merged:  # the composed arcs differ from one arc over the edge: the test has teeth
+        single = OdometryFactor(np.arange(N - 1), np.arange(1, N), dphi, info)
+        assert not np.allclose(single.residuals(values), base.residuals(values), atol=1e-6)
     z = rng.normal(0, 1, (N - 1, 3))
     assert np.allclose(EffectLaserFactor(np.arange(N - 1), np.arange(1, N), z, info, effects)
                        .residuals(values),
                        LaserFactor(np.arange(N - 1), np.arange(1, N), z, info).residuals(values))
+
+
+def test_extend_problem_keeps_the_parts():
+    from sclam_ros.effects.model import extend_problem
+    from sclam_ros.solver import Problem
+
+    d = data()
+    effects = [LIBRARY["time_offset"](d)]
+    values = values_with([])
+    parts = merged_parts()
+    info = np.tile(np.eye(3), (N - 1, 1, 1))
+    base = OdometryFactor(np.arange(N - 1), np.arange(1, N), parts.sum(1), info, parts=parts)
+    ext = extend_problem(Problem(values, [base]), effects)
+    odo = next(f for f in ext.factors if f.name == "odometry")
+    assert isinstance(odo, EffectOdometryFactor) and np.array_equal(odo.parts, base.parts)
+    assert np.allclose(odo.residuals(ext.values), base.residuals(values), rtol=0, atol=1e-14)
 
 
 def test_wheel_speeds_from_keyframes():

@@ -295,7 +295,8 @@ def test_deterministic_per_seed(tmp_path):
 
 
 def test_effects_registry_and_parsing():
-    assert set(EFFECTS) >= {"time_offset", "radius_change_at", "lateral_slip", "radius_drift", "scan_motion"}
+    assert set(EFFECTS) >= {"time_offset", "radius_change_at", "lateral_slip", "radius_drift", "scan_motion",
+                            "wheel_eccentricity", "speed_dependent_slip", "floor_noise_region"}
     assert make_effect("time_offset", "0.05").offset == 0.05
     change = make_effect("radius_change_at", "10,-0.02,0.01")
     assert (change.time, change.left, change.right) == (10.0, -0.02, 0.01)
@@ -335,6 +336,28 @@ def test_lateral_slip_moves_the_body_sideways_in_turns():
     vx, vy, w = trajectory.twists.T
     np.testing.assert_allclose(vy, -0.05 * vx * w)
     assert np.abs(vy).max() > 0.005  # curves driven at speed: loops, S-curves
+
+
+def test_wheel_eccentricity_and_speed_slip_bend_the_wheel_rotation():
+    plain = TrueKinematics(0.1263, 0.1275, 0.5825)
+    trajectory = simulate_trajectory(WORLD, plain, 20.0, seed=0, robot_radius=0.45)
+    before = plain.wheel_angle_increments(trajectory)
+    ecc = TrueKinematics(0.1263, 0.1275, 0.5825, EffectSet.from_spec(
+        {"wheel_eccentricity": {"amplitude": 0.02, "phase_left": 0.0, "phase_right": 0.0}}))
+    after = ecc.wheel_angle_increments(trajectory)
+    phi = np.vstack([np.zeros(2), np.cumsum(after, 0)[:-1]])
+    # rolling distance preserved: r·(1 + a·sin φ)·dφ = r·dφ₀
+    np.testing.assert_allclose(after * (1 + 0.02 * np.sin(phi)), before, rtol=1e-12, atol=1e-15)
+    slip = TrueKinematics(0.1263, 0.1275, 0.5825, EffectSet.from_spec({"speed_dependent_slip": 0.1}))
+    u = np.abs(trajectory.twists[:, 0])
+    np.testing.assert_allclose(slip.wheel_angle_increments(trajectory),
+                               before * (1 + 0.1 * u**2)[:, None], rtol=1e-12)
+
+
+def test_floor_noise_region_scales_slip_noise_by_position():
+    effect = EffectSet.from_spec({"floor_noise_region": {"factor": 3.0, "x_min": 1.0}})
+    np.testing.assert_array_equal(effect.slip_noise_scale(np.array([[0.0, 5.0], [2.0, -1.0]])),
+                                  [1.0, 3.0])
 
 
 def test_scan_motion_writes_time_increment(tmp_path):

@@ -3,9 +3,18 @@
 The extended odometry edge is
     e = (x_j ⊖ x_i) ⊖ m,   m = K(dφ', k_e) + Σ Δm,
 with dφ' and k_e the increments and wheel parameters after the effects' hooks, Δm the
-motion terms (see base.ModelEffect). The extended laser edge compares the laser's motion
-with the corrected scan match z'. With no effect both reduce to factors.OdometryFactor /
-factors.LaserFactor exactly.
+motion terms (see base.ModelEffect). A merged edge (graph.merge_keyframes, with per-scan
+``parts``) composes its per-scan arcs as factors.OdometryFactor does, and the effects act
+on the composed motion:
+    m = K∘(parts, k_e) + [K(dφ', k_e) − K(dφ, k_e)] + Σ Δm,
+i.e. per-edge wheel parameters (radius_drift) enter the composition exactly, an increment
+correction (time_offset: δ·(ω_j − ω_i), which lives at the edge's two ends) perturbs the
+composed motion by its first-order effect on the edge's arc, and the motion terms
+(lateral_slip) read the edge's total arc length and rotation, which are sums over the
+parts and so the same either way. With all effects at zero the bracket vanishes and
+m = K∘(parts, k) exactly: the base factor. The extended laser edge compares the laser's
+motion with the corrected scan match z'. With no effect both reduce to
+factors.OdometryFactor / factors.LaserFactor exactly.
 """
 from __future__ import annotations
 
@@ -23,8 +32,8 @@ def _effect_params(values, effect):
 class EffectOdometryFactor(factors.OdometryFactor):
     name = "odometry"
 
-    def __init__(self, pose_i, pose_j, dphi, information, effects):
-        super().__init__(pose_i, pose_j, dphi, information)
+    def __init__(self, pose_i, pose_j, dphi, information, effects, parts=None):
+        super().__init__(pose_i, pose_j, dphi, information, parts=parts)
         self.effects = [e for e in effects if e.kind == "odometry"]
 
     def predicted_motion_with_jacobians(self, values):
@@ -44,9 +53,16 @@ class EffectOdometryFactor(factors.OdometryFactor):
             d_ke = {key: j_prev @ val for key, val in d_ke.items()}
             d_ke[e.name] = j_p
             d_ke_k = j_prev @ d_ke_k
-        motion = kinematics.forward(dphi, k_e)
         d_m_u = kinematics.jacobian_u(dphi, k_e)
-        d_m_ke = kinematics.jacobian_k(dphi, k_e)
+        if self.parts is None:
+            motion = kinematics.forward(dphi, k_e)
+            d_m_ke = kinematics.jacobian_k(dphi, k_e)
+        else:
+            motion, d_m_ke = kinematics.forward_composed(self.parts, k_e)
+            if d_dphi:  # an increment correction: its first-order effect on the edge's arc
+                motion = motion + kinematics.forward(dphi, k_e) - kinematics.forward(self.dphi, k_e)
+                d_m_ke = (d_m_ke + kinematics.jacobian_k(dphi, k_e)
+                          - kinematics.jacobian_k(self.dphi, k_e))
         own = {}
         for e in self.effects:
             term, t_u, t_k, t_p = e.motion_term(dphi, k_e, _effect_params(values, e), i, j)
@@ -124,7 +140,8 @@ def extend_problem(problem: Problem, effects, initial=None) -> Problem:
     fitted = [e for e in effects if e.kind != "noise"]
     for f in problem.factors:
         if type(f) in (factors.OdometryFactor, EffectOdometryFactor):
-            f = EffectOdometryFactor(f.pose_i, f.pose_j, f.dphi, f.information, fitted)
+            f = EffectOdometryFactor(f.pose_i, f.pose_j, f.dphi, f.information, fitted,
+                                     parts=f.parts)
         elif type(f) in (factors.LaserFactor, EffectLaserFactor):
             f = EffectLaserFactor(f.pose_i, f.pose_j, f.z, f.information, fitted)
         new_factors.append(f)

@@ -9,6 +9,17 @@ the seams of the simulated truth:
 - ``encoder_stamp(t)``            header stamp of an encoder sample taken at true time t
 - ``scan_time_increment(scan_rate, beams)``  seconds between two beams of one scan
                                   (0: the whole scan is taken at its stamp)
+- ``wheel_increments(t, increments, twists)`` the wheel rotations (K, 2) the encoders see
+                                  over each control interval, from those of round wheels
+                                  rolling without slip (wheel eccentricity, speed-dependent
+                                  slip)
+- ``slip_noise_scale(positions)`` factor on the slip noise σ per control interval, from
+                                  the body position (x, y) at its start (floor noise)
+
+``wheel_eccentricity``, ``speed_dependent_slip`` and ``floor_noise_region`` are *outside*
+the model library of sclam_ros.effects on purpose (floor_noise_region is close to the
+library's floor_noise, the other two have no counterpart): they test that diagnose
+reports what it cannot explain instead of attributing it to a wrong effect.
 
 With no effect every hook is the identity and the encoders agree with the TRUE
 kinematics up to the slip noise and the tick quantisation.
@@ -60,6 +71,12 @@ class Effect:
 
     def scan_time_increment(self, scan_rate: float, beams: int) -> float:
         return 0.0
+
+    def wheel_increments(self, t, increments, twists):
+        return increments
+
+    def slip_noise_scale(self, positions):
+        return np.ones(len(positions))
 
 
 class TimeOffset(Effect):
@@ -128,8 +145,58 @@ class ScanMotion(Effect):
         return self.fraction / scan_rate / beams
 
 
+class WheelEccentricity(Effect):
+    name = "wheel_eccentricity"
+    doc = (
+        "out-of-round (eccentric) wheels: the rolling radius of each wheel is "
+        "r·(1 + amplitude·sin(φ + phase)) at wheel angle φ, a periodic odometry error "
+        "once per wheel revolution (amplitude as a fraction of r)"
+    )
+    params = (("amplitude", 0.02, "fraction"), ("phase_left", 0.0, "rad"),
+              ("phase_right", 1.0, "rad"))
+
+    def wheel_increments(self, t, increments, twists):
+        # Ground distance r(φ)·dφ fixed: dφ = dφ₀ / (1 + a·sin(φ + phase)), integrated
+        # interval by interval (φ from the start of the run: the encoders' zero is arbitrary).
+        out = np.empty_like(increments)
+        phi = np.zeros(2)
+        phase = np.array([self.phase_left, self.phase_right])
+        for k, d in enumerate(increments):
+            out[k] = d / (1.0 + self.amplitude * np.sin(phi + phase))
+            phi = phi + out[k]
+        return out
+
+
+class SpeedDependentSlip(Effect):
+    name = "speed_dependent_slip"
+    doc = (
+        "longitudinal wheel slip growing with speed: each wheel turns (1 + gain·u²) times "
+        "what rolling needs at surface speed u (gain in s²/m²; 0.1 gives 3.6 % at 0.6 m/s)"
+    )
+    params = (("gain", 0.1, "s²/m²"),)
+
+    def wheel_increments(self, t, increments, twists):
+        # Surface speed of each wheel from the rolling increments is not known here (the
+        # radii are), so use the body speed: u = |vx| for both wheels.
+        u = np.abs(np.asarray(twists)[:, 0])
+        return increments * (1.0 + self.gain * u**2)[:, None]
+
+
+class FloorNoiseRegion(Effect):
+    name = "floor_noise_region"
+    doc = (
+        "a rough floor: the wheels' slip noise σ is multiplied by `factor` where x > x_min "
+        "(map frame, m)"
+    )
+    params = (("factor", 4.0, "ratio of σ"), ("x_min", 0.0, "m"))
+
+    def slip_noise_scale(self, positions):
+        return np.where(np.asarray(positions)[:, 0] > self.x_min, self.factor, 1.0)
+
+
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (TimeOffset, RadiusChangeAt, RadiusDrift, LateralSlip, ScanMotion)
+    cls.name: cls for cls in (TimeOffset, RadiusChangeAt, RadiusDrift, LateralSlip, ScanMotion,
+                              WheelEccentricity, SpeedDependentSlip, FloorNoiseRegion)
 }
 
 
@@ -211,3 +278,14 @@ class EffectSet:
 
     def scan_time_increment(self, scan_rate, beams) -> float:
         return sum(e.scan_time_increment(scan_rate, beams) for e in self.effects)
+
+    def wheel_increments(self, t, increments, twists):
+        for effect in self.effects:
+            increments = effect.wheel_increments(t, increments, twists)
+        return increments
+
+    def slip_noise_scale(self, positions):
+        scale = np.ones(len(positions))
+        for effect in self.effects:
+            scale = scale * effect.slip_noise_scale(positions)
+        return scale

@@ -115,4 +115,4 @@ class TrueKinematics:
         half_base = self.wheel_base / 2.0
         left = (vx - w * half_base) / r_left * trajectory.dt
         right = (vx + w * half_base) / r_right * trajectory.dt
-        return np.stack([left, right], -1)
+        return self.effects.wheel_increments(mid, np.stack([left, right], -1), trajectory.twists)

@@ -33,6 +33,7 @@ def encoder_samples(trajectory: Trajectory, kinematics: TrueKinematics, rate: fl
     increments = kinematics.wheel_angle_increments(trajectory)
     # Slip: each interval's rotation gets noise with variance ∝ the angle turned.
     slip = rng.standard_normal(increments.shape) * slip_noise * np.sqrt(np.abs(increments))
+    slip *= kinematics.effects.slip_noise_scale(trajectory.poses[:-1, :2])[:, None]
     true_knots = np.vstack([np.zeros(2), np.cumsum(increments, axis=0)])
     measured_knots = np.vstack([np.zeros(2), np.cumsum(increments + slip, axis=0)])
     times = np.arange(int(np.floor(trajectory.duration * rate + 1e-9)) + 1) / rate
