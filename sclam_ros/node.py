@@ -344,6 +344,7 @@ class SclamNode(Node):
             "solves": cal.solves,
             "joint_states_received": self.received["joint_states"],
             "scans_received": self.received["scan"],
+            "scans_skipped_above_max_rate": cal.skipped_scans,
             "last_solve_converged": "n/a" if estimate is None else str(bool(estimate.converged)).lower(),
             "residual_rms": "n/a" if estimate is None or not estimate.residual_rms else "; ".join(
                 f"{name} " + " ".join(f"{v:.3g}" for v in rms)

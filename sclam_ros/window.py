@@ -40,6 +40,12 @@ MARGINALISE_BATCH = 20
 # Fewer keyframes than this in the window: no solve (too little to say anything).
 MIN_WINDOW_KEYFRAMES = 6
 SLOW_KEYS = ("wheel_base", "laser_x", "laser_y", "laser_yaw")
+# Scans closer than this to the last one used are skipped: the window merges scans into
+# keyframe_interval edges anyway, and a 40 Hz / 1080-beam laser matched scan by scan needs
+# a whole core (measured: bench/node_latency.py). A chain of fewer, longer scan matches
+# composes to the same edge with no more noise (the errors of consecutive matches are
+# negatively correlated, so they do not average out by matching more often).
+MIN_SCAN_INTERVAL = 0.09  # s: at most ~10 Hz of scans are matched
 
 
 @dataclass
@@ -144,6 +150,7 @@ class OnlineCalibrator:
         self._distance = deque()  # metres travelled by each keyframe's odometry edge
         self._leaving = []  # keyframes out of the window, waiting to be marginalised
         self._since_solve = 0
+        self._last_scan_stamp = None
 
     def reset_calibration(self) -> None:
         """Back to the nominal values and no accumulated information at all."""
@@ -152,6 +159,7 @@ class OnlineCalibrator:
         self.slow = _Slow()
         self.estimate: Optional[Estimate] = None
         self.solves = 0
+        self.skipped_scans = 0  # scans not matched, see MIN_SCAN_INTERVAL
         self.reset_window()
 
     def set_window_distance(self, metres: float) -> None:
@@ -163,6 +171,11 @@ class OnlineCalibrator:
         return self.add_keyframes(self.frontend.add_encoder(stamp, left_raw, right_raw))
 
     def add_scan(self, scan) -> Optional[Estimate]:
+        last = self._last_scan_stamp
+        if last is not None and 0.0 <= scan.stamp - last < MIN_SCAN_INTERVAL:
+            self.skipped_scans += 1
+            return None
+        self._last_scan_stamp = scan.stamp
         return self.add_keyframes(self.frontend.add_scan(scan))
 
     def add_keyframes(self, keyframes) -> Optional[Estimate]:

@@ -1,0 +1,190 @@
+"""Acceptance 4 of the online node: latency, CPU share, memory, dropped encoder messages.
+
+Latency: a simulated recording is replayed through sclam_node's own callbacks
+(SclamNode._on_joint_state / _on_scan, message conversion and publishing included, no DDS
+transport) on one thread, as rclpy's single-threaded executor runs them. Each callback's
+wall time is measured; a queue model on the recording's arrival times (record time) then
+gives, for every message, when its callback could start (after the previous one finished)
+and when it finished:
+  - scan → keyframe: from a scan's arrival to the end of the callback that turned it into
+    a keyframe (the frontend waits for the encoder sample after the scan, so that is
+    usually the next encoder callback);
+  - scan → estimate update: the same for the scans whose keyframe triggered a window
+    solve and a new ~/wheel_parameters (one per second of data);
+  - encoder → ~/odom: from an encoder message's arrival to the end of its callback
+    (~/odom is published at the start of it, so this is an upper bound).
+Dropped encoder messages: arrivals that find the JointState queue (depth 200) full.
+CPU share: Σ callback time / recording duration (of one core).
+
+Memory: --hours of simulated data fed straight into the OnlineCalibrator, faster than
+real time; RSS sampled every simulated minute must stay flat.
+
+    python bench/node_latency.py                  # both rates, 120 s each; memory over 1 h
+    python bench/node_latency.py --hours 0        # skip the memory run
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import table  # noqa: E402
+
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 200))
+
+JOINT_QUEUE_DEPTH = 200  # the node's JointState subscription depth
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmRSS:"):
+                return float(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def replay_through_node(bag, params_file):
+    import rclpy
+
+    from sclam_ros.bag import iter_messages, topic_info
+    from sclam_ros.commands.play import rclpy_class, rosbags_to_rclpy
+    from sclam_ros.node import SclamNode
+    from sclam_ros.params import SclamParams
+
+    params = SclamParams.from_yaml(params_file)
+    info = topic_info(bag)
+    topics = [params.joint_states_topic, params.scan_topic]
+    messages = [(topic, t, rosbags_to_rclpy(msg, rclpy_class(info[topic][0])))
+                for topic, t, msg in iter_messages(bag, topics)]
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        overrides = [rclpy.parameter.Parameter(k, value=v) for k, v in
+                     params.to_yaml_dict()["sclam"]["ros__parameters"].items()]
+        node = SclamNode(context=context, parameter_overrides=overrides)
+        records = []  # (is_scan, arrival, duration, solves before, solves after, keyframes)
+        for topic, t, msg in messages:
+            is_scan = topic == params.scan_topic
+            frames_before = node.calibrator.frontend._count
+            solves_before = node.calibrator.solves
+            skipped_before = node.calibrator.skipped_scans
+            start = time.perf_counter()
+            (node._on_scan if is_scan else node._on_joint_state)(msg)
+            took = time.perf_counter() - start
+            records.append((is_scan, t, took, node.calibrator.solves > solves_before,
+                            node.calibrator.frontend._count - frames_before,
+                            node.calibrator.skipped_scans > skipped_before))
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+    return records
+
+
+def queue_model(records):
+    """Start/finish of each callback on one thread; latencies; drops of the joint queue."""
+    finish_prev = -np.inf
+    pending_scans = []  # arrival times of scans not yet turned into keyframes
+    scan_latency, solve_latency, odom_latency = [], [], []
+    joint_waiting = []  # finish times of encoder callbacks queued (for the depth check)
+    dropped = 0
+    busy = 0.0
+    for is_scan, arrival, took, solved, keyframes, skipped in records:
+        joint_waiting = [f for f in joint_waiting if f > arrival]
+        if not is_scan and len(joint_waiting) >= JOINT_QUEUE_DEPTH:
+            dropped += 1
+            continue
+        start = max(arrival, finish_prev)
+        finish = start + took
+        finish_prev = finish
+        busy += took
+        if is_scan and not skipped:  # a skipped scan (above 10 Hz) has no estimate of its own
+            pending_scans.append(arrival)
+        else:
+            joint_waiting.append(finish)
+            odom_latency.append(finish - arrival)
+        for _ in range(min(keyframes, len(pending_scans))):
+            lat = finish - pending_scans.pop(0)
+            scan_latency.append(lat)
+            if solved:
+                solve_latency.append(lat)
+    return (np.array(scan_latency), np.array(solve_latency), np.array(odom_latency), dropped, busy)
+
+
+def memory_run(hours, workdir, scan_rate, beams, encoder_rate):
+    from sclam_ros.offline import iter_keyframes
+    from sclam_ros.params import SclamParams
+    from sclam_ros.sim import simulate
+    from sclam_ros.window import OnlineCalibrator
+
+    bag = workdir / "memory"
+    simulate(bag, robot="powerbot", duration=hours * 3600.0, seed=2, scan_rate=scan_rate,
+             beams=beams, encoder_rate=encoder_rate, overwrite=True)
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    calibrator = OnlineCalibrator(params)
+    samples, next_minute, first = [], 0.0, None
+    for kf in iter_keyframes(bag, params, calibrator.frontend):
+        calibrator.add_keyframes([kf])
+        first = kf.stamp if first is None else first
+        if kf.stamp - first >= next_minute:
+            samples.append((next_minute / 60.0, rss_mb(), len(calibrator.window)))
+            next_minute += 60.0
+    return samples
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--duration", type=float, default=120.0, help="s per latency run")
+    parser.add_argument("--hours", type=float, default=1.0, help="simulated hours for the memory run")
+    args = parser.parse_args()
+    from sclam_ros.sim import simulate
+
+    workdir = Path(tempfile.mkdtemp(prefix="sclam_latency_"))
+    rows = []
+    for scan_rate, beams, encoder_rate in ((10.0, 360, 100.0), (40.0, 1080, 100.0)):
+        bag = workdir / f"s{scan_rate:g}_b{beams}"
+        simulate(bag, robot="powerbot", duration=args.duration, seed=4, scan_rate=scan_rate,
+                 beams=beams, encoder_rate=encoder_rate, overwrite=True)
+        records = replay_through_node(bag, bag / "params.yaml")
+        scan, solve, odom, dropped, busy = queue_model(records)
+        period = 1.0 / scan_rate
+        scan_times = np.array([r[2] for r in records if r[0]])
+        skipped = sum(r[5] for r in records)
+        ms = lambda x, q: f"{1e3 * np.percentile(x, q):.1f}" if len(x) else "n/a"  # noqa: E731
+        p99 = np.percentile(solve, 99)  # the estimate update: the slowest kind of scan
+        rows.append([
+            f"{scan_rate:g} Hz / {beams}", f"{encoder_rate:g} Hz", len(scan), skipped,
+            ms(scan, 50), ms(scan, 99), ms(solve, 50), ms(solve, 99), f"{1e3 * period:.0f}",
+            "yes" if p99 < period else f"NO (+{1e3 * (p99 - period):.0f} ms)",
+            ms(odom, 50), ms(odom, 99), f"{1e3 * np.median(scan_times):.1f}",
+            f"{100 * busy / args.duration:.0f} %", dropped,
+        ])
+        print(f"done {scan_rate:g} Hz / {beams} beams", flush=True)
+    print(f"\nlatency through sclam_node's callbacks, single thread, {args.duration:.0f} s of "
+          "simulated PowerBot per row (queue model on record times; ms)")
+    print(table(rows, ["scans", "encoders", "scans matched", "skipped (>10 Hz)",
+                       "scan→keyframe p50", "p99", "scan→estimate update p50", "p99",
+                       "scan period", "update p99 < period",
+                       "encoder→odom p50", "p99", "scan callback p50", "CPU of one core",
+                       "encoder msgs dropped"]))
+    if args.hours > 0:
+        samples = memory_run(args.hours, workdir, 10.0, 360, 100.0)
+        print(f"\nmemory: {args.hours:g} h of simulated data (10 Hz / 360 beams, 100 Hz encoders) "
+              "fed to the OnlineCalibrator; RSS every simulated minute")
+        every = max(1, len(samples) // 12)
+        print(table([[f"{m:.0f}", f"{r:.0f}", k] for m, r, k in samples[::every] + samples[-1:]],
+                    ["minute", "RSS MB", "window keyframes"]))
+        rss = np.array([r for _, r, _ in samples])
+        half = len(rss) // 2
+        print(f"RSS growth over the second half: {rss[-1] - rss[half]:+.1f} MB "
+              f"(first half: {rss[half] - rss[0]:+.1f} MB)")
+
+
+if __name__ == "__main__":
+    main()
