@@ -33,8 +33,8 @@ def main():
     rows = [[k, f"{np.mean(z[:, i]):+.2f}", f"{rms[i]:.2f}", "yes" if 0.5 <= rms[i] <= 2 else "NO",
              f"{rms_model[i]:.2f}"]
             for i, k in enumerate(CALIBRATION_KEYS)]
-    print(f"\n{args.robot}, {args.seeds} seeds × {args.duration:.0f} s (σ = reported sandwich σ; "
-          f"last column: the noise model's H⁻¹ σ, for comparison):")
+    print(f"\n{args.robot}, {args.seeds} seeds × {args.duration:.0f} s (σ = reported σ: the noise "
+          f"model's, raised where the residual spread is larger; last column: the noise model's alone):")
     print(table(rows, ["parameter", "mean err/σ", "RMS err/σ", "0.5 ≤ RMS ≤ 2", "RMS err/σ_model"]))
 
 
