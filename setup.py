@@ -19,7 +19,6 @@ setup(
     maintainer_email="sclam-ros@example.com",
     description="Simultaneous calibration, localization and mapping for differential-drive robots",
     license="LGPL-3.0-or-later",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "sclam = sclam_ros.cli:main",
