@@ -24,31 +24,36 @@ class Recording:
     frontend: Frontend = None
 
 
-def iter_keyframes(path, params, frontend=None, progress=None):
-    """Yield keyframes from a bag in record order; `frontend` may be shared with a caller
-    that wants to update its calibration while reading (the online tracker)."""
-    frontend = frontend or Frontend(params)
+def iter_outputs(path, params, sink, progress=None):
+    """Feed a bag's messages in record order to `sink` (a Frontend or an OnlineCalibrator:
+    anything with add_encoder, add_scan and rejections), through the same conversions the
+    node uses; yield what each call returns."""
     topics = [params.joint_states_topic, params.scan_topic]
     total = sum(bag.topic_info(path).get(t, (None, 0))[1] for t in topics)
-    seen = 0
-    for topic, _, msg in bag.iter_messages(path, topics):
-        seen += 1
+    for seen, (topic, _, msg) in enumerate(bag.iter_messages(path, topics), 1):
         if progress is not None and seen % 500 == 0:
             progress(seen, total)
         if topic == params.joint_states_topic:
             try:
                 stamp, left, right = joint_state_to_raw(msg, params)
             except MessageRejected as exc:
-                if exc.reason not in frontend.rejections.counts:
+                if exc.reason not in sink.rejections.counts:
                     log.warning("rejecting %s messages (counted): %s", topic, exc)
-                frontend.rejections.add(exc.reason)
+                sink.rejections.add(exc.reason)
                 continue
-            yield from frontend.add_encoder(stamp, left, right)
+            yield sink.add_encoder(stamp, left, right)
         else:
-            yield from frontend.add_scan(laser_scan_to_scan(msg))
-    yield from frontend.flush()
+            yield sink.add_scan(laser_scan_to_scan(msg))
     if progress is not None:
         progress(total, total)
+
+
+def iter_keyframes(path, params, frontend=None, progress=None):
+    """Yield keyframes from a bag in record order."""
+    frontend = frontend or Frontend(params)
+    for keyframes in iter_outputs(path, params, frontend, progress):
+        yield from keyframes
+    yield from frontend.flush()
 
 
 def read_recording(path, params, progress=None) -> Recording:

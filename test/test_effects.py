@@ -2,7 +2,7 @@
 recovers an injected effect from synthetic edges."""
 import numpy as np
 import pytest
-from numdiff import central_difference
+from numdiff import check_factor_jacobians
 
 from sclam_ros import kinematics, se2
 from sclam_ros.effects import LIBRARY, EffectData
@@ -28,19 +28,6 @@ def values_with(effects, p=None):
     return v
 
 
-def check(factor, values):
-    lin = factor.linearize(values)
-    for jb in lin.blocks:
-        for edge, row in enumerate(jb.rows):
-            def residual_of(var, edge=edge, row=row, block=jb.block):
-                perturbed = values.copy()
-                perturbed[block][row] = var
-                return factor.linearize(perturbed).residual[edge]
-
-            numeric = central_difference(residual_of, values[jb.block][row])
-            assert np.allclose(jb.jacobian[edge], numeric, atol=1e-6), (factor.name, jb.block)
-
-
 def merged_parts():
     """Per-scan increments of merged edges: ragged (zero-padded), curvature changing."""
     parts = rng.normal(0, 0.6, (N - 1, 4, 2))
@@ -60,7 +47,7 @@ def test_odometry_effect_jacobians(names, merged):
     dphi = parts.sum(1) if merged else rng.normal(0, 2, (N - 1, 2))
     f = EffectOdometryFactor(np.arange(N - 1), np.arange(1, N), dphi,
                              np.tile(np.eye(3), (N - 1, 1, 1)), effects, parts=parts)
-    check(f, values)
+    check_factor_jacobians(f, values)
 
 
 def test_scan_distortion_jacobians():
@@ -70,7 +57,7 @@ def test_scan_distortion_jacobians():
     z = np.column_stack([rng.normal(0, 1, (N - 1, 2)), rng.uniform(-1, 1, N - 1)])
     f = EffectLaserFactor(np.arange(N - 1), np.arange(1, N), z, np.tile(np.eye(3), (N - 1, 1, 1)),
                           effects)
-    check(f, values)
+    check_factor_jacobians(f, values)
 
 
 @pytest.mark.parametrize("merged", [False, True])

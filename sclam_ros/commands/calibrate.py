@@ -67,8 +67,7 @@ def track(bag, params, progress=None):
 
     Returns (rows, calibrator): one row per window solve, in TRACK_COLUMNS order.
     """
-    from sclam_ros import bag as bag_mod
-    from sclam_ros.conversions import MessageRejected, joint_state_to_raw, laser_scan_to_scan
+    from sclam_ros.offline import iter_outputs
     from sclam_ros.window import OnlineCalibrator
 
     calibrator = OnlineCalibrator(params)
@@ -80,24 +79,10 @@ def track(bag, params, progress=None):
                          *(estimate.sigma[k] for k in CALIBRATION_KEYS)])
 
     # The messages in record order through the same calls the node makes in its callbacks.
-    topics = [params.joint_states_topic, params.scan_topic]
-    total = sum(bag_mod.topic_info(bag).get(t, (None, 0))[1] for t in topics)
-    for seen, (topic, _, msg) in enumerate(bag_mod.iter_messages(bag, topics), 1):
-        if progress is not None and seen % 500 == 0:
-            progress(seen, total)
-        if topic == params.joint_states_topic:
-            try:
-                stamp, left, right = joint_state_to_raw(msg, params)
-            except MessageRejected as exc:
-                calibrator.rejections.add(exc.reason)
-                continue
-            record(calibrator.add_encoder(stamp, left, right))
-        else:
-            record(calibrator.add_scan(laser_scan_to_scan(msg)))
+    for estimate in iter_outputs(bag, params, calibrator, progress):
+        record(estimate)
     # No flush at the end: the live node never sees an end either, so both stop at the
     # same last estimate.
-    if progress is not None:
-        progress(total, total)
     return rows, calibrator
 
 
