@@ -7,7 +7,7 @@ import pytest
 
 from sclam_ros import bag, cli, kinematics, se2
 from sclam_ros.convert import (OPTIODOM_TICKS_PER_REV, URG_BEAMS, ConvertError,
-                               convert_optiodom, read_optiodom)
+                               convert_breezyslam, convert_optiodom, read_optiodom, repair_ticks)
 from sclam_ros.params import SclamParams
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -58,6 +58,32 @@ def test_breezyslam_bag_scans_ticks_params_attribution(tmp_path):
     text = (out / "ATTRIBUTION.md").read_text()
     assert "simondlevy/BreezySLAM" in text and "1170285cd42a" in text and "LGPL-3.0" in text
     assert (out / "SOURCE_LICENSE.md").is_file()
+
+
+def test_repair_ticks_pairs_each_scan_with_a_neighbouring_lines_ticks():
+    stamps = np.arange(5.0)
+    ticks = np.column_stack([np.arange(5) * 10, np.arange(5) * 100])
+    ranges = np.arange(5.0)[:, None] * np.ones((1, 3))
+    s, t, r = repair_ticks(stamps, ticks, ranges, -1)
+    assert list(s) == [1, 2, 3, 4] and list(r[:, 0]) == [1, 2, 3, 4]
+    assert list(t[:, 0]) == [0, 10, 20, 30]  # line i's scan, line i−1's ticks
+    s, t, _ = repair_ticks(stamps, ticks, ranges, 1)
+    assert list(s) == [0, 1, 2, 3] and list(t[:, 1]) == [100, 200, 300, 400]
+    assert all(np.array_equal(x, y) for x, y in zip(repair_ticks(stamps, ticks, ranges, 0),
+                                                   (stamps, ticks, ranges)))
+
+
+@needs
+def test_breezyslam_tick_shift_takes_the_previous_lines_ticks(tmp_path):
+    raw = np.loadtxt(MINES)
+    convert_breezyslam(MINES, tmp_path / "m1", tick_shift=-1)
+    joints = _read(tmp_path / "m1" / "bag", "/joint_states")
+    assert len(joints) == len(raw) - 1
+    positions = np.array([m.position for _, m in joints])
+    assert np.array_equal(positions, raw[:-1, [2, 3]])
+    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in joints])
+    assert np.allclose(stamps, raw[1:, 0] * 1e-6, atol=1e-6)
+    assert "ticks of line i-1" in (tmp_path / "m1" / "ATTRIBUTION.md").read_text()
 
 
 def _dead_reckoning(ticks, params):

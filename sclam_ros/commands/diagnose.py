@@ -1,11 +1,14 @@
-"""``sclam diagnose BAG --params PARAMS.yaml --json OUT.json [--report DIR]``: is the model enough?
+"""``sclam diagnose BAG --params PARAMS.yaml --json OUT.json [--report DIR] [--predict OTHER_BAG]``:
+is the model enough?
 
 Calibrates the recording (the base model), tests its residuals for structure (whiteness,
 dependence on speed, turn rate, acceleration, time, distance, position, wheel angle),
 fits every effect of the library (sclam_ros/effects) jointly with the calibration, selects
 those that lower the error on held-out time blocks and pass a BIC check, refits with them
 and reports what is still unexplained. --report writes residual-vs-regressor figures,
-before and after.
+before and after. --predict scores another recording of the same robot with the base and
+extended models fitted on BAG (sclam_ros.cross_run): the error across runs, in
+``base.error_cross_run`` / ``extended.error_cross_run``.
 """
 from __future__ import annotations
 
@@ -26,12 +29,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--effects", metavar="NAME[,NAME...]",
                         help="effects to try (default: time_offset,lateral_slip,radius_drift,floor_noise)")
     parser.add_argument("--folds", type=int, default=5, help="time blocks of the cross-validation")
+    parser.add_argument("--predict", metavar="OTHER_BAG",
+                        help="another recording of the same robot: fit on BAG, report the error on it")
+    parser.add_argument("--predict-params", metavar="PARAMS.yaml",
+                        help="parameters file for OTHER_BAG (default: --params)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
 def format_summary(report) -> str:
     lines = [f"held-out error: base {report['base']['error']:.4f}, "
              f"extended {report['extended']['error']:.4f}"]
+    if "error_cross_run" in report["extended"]:
+        ext = report["extended"]
+        lines.append(f"cross-run error (fitted here, scored on the other recording, "
+                     f"{ext['cross_run_edges']} edges): base {report['base']['error_cross_run']:.4f}, "
+                     f"extended {ext['error_cross_run']:.4f} "
+                     f"(gain ± stderr {report['base']['error_cross_run'] - ext['error_cross_run']:+.4f} "
+                     f"± {ext['cross_run_gain_stderr']:.4f})")
     for e in report["effects"]:
         sigma = "" if e["sigma"] is None else f" ± {e['sigma']:.4g}"
         lines.append(f"  {'SELECTED ' if e['selected'] else 'rejected '}{e['name']:<16}"
@@ -49,6 +63,7 @@ def format_summary(report) -> str:
 
 def run(args) -> int:
     from sclam_ros.bag import BagError
+    from sclam_ros.cross_run import add_cross_run
     from sclam_ros.diagnose import diagnose_keyframes, write_diagnosis_report
     from sclam_ros.effects import LIBRARY
     from sclam_ros.estimator import CalibrationError
@@ -66,6 +81,13 @@ def run(args) -> int:
                                    progress=ProgressBar("reading + scan matching", not args.quiet))
         diagnosis = diagnose_keyframes(recording.keyframes, params, names, folds=args.folds,
                                        progress=None if args.quiet else log.info)
+        if args.predict:
+            other_params = SclamParams.from_yaml(args.predict_params or args.params)
+            other = read_recording(args.predict, other_params,
+                                   progress=ProgressBar("reading + scan matching (--predict)",
+                                                        not args.quiet))
+            add_cross_run(diagnosis.report, recording.keyframes, params, other.keyframes,
+                          other_params, args.predict)
     except (ParamsError, BagError, CalibrationError, FileNotFoundError, ValueError) as exc:
         print(f"sclam diagnose: error: {exc}", file=sys.stderr)
         return 2
