@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 from dataclasses import fields
 from typing import Optional
 
@@ -61,6 +62,7 @@ from . import kinematics
 from .conversions import MessageRejected, joint_state_to_raw, laser_scan_to_scan
 from .inputs import Rejections
 from .params import CALIBRATION_KEYS, NODE_NAME, ODOMETRY_KEYS, ParamsError, SclamParams
+from .solver_thread import SolverThread
 from .sync import EncoderStream
 from .window import OnlineCalibrator
 
@@ -179,7 +181,10 @@ class SclamNode(Node):
         self.params = self._read_params()
         self.calibration_file = self.get_parameter("calibration_file").value
         self.rejections = Rejections()
-        self.calibrator = OnlineCalibrator(self.params, self.rejections)
+        # The callbacks (one executor thread) and the window solver thread share the
+        # calibrator; every access to it holds this lock. See solver_thread.py.
+        self.lock = threading.Lock()
+        self.calibrator = OnlineCalibrator(self.params, self.rejections, inline_solve=False)
         self.odometry = OdometryIntegrator(self.params)
         self.received = {"joint_states": 0, "scan": 0}
         self.estimates = 0
@@ -194,6 +199,8 @@ class SclamNode(Node):
                                  self._on_joint_state, 200)
         self.create_subscription(LaserScan, self.params.scan_topic, self._on_scan,
                                  qos_profile_sensor_data)
+        self.solver = SolverThread(self.calibrator, self.lock, self._publish_estimate,
+                                   self._solver_failed)
         self.create_service(Trigger, "~/reset_window", self._reset_window)
         self.create_service(Trigger, "~/reset_calibration", self._reset_calibration)
         self.create_service(Trigger, "~/save_calibration", self._save_calibration)
@@ -204,6 +211,10 @@ class SclamNode(Node):
             f"calibrating from {self.params.joint_states_topic} ({self.params.left_wheel_joint}, "
             f"{self.params.right_wheel_joint}) and {self.params.scan_topic}"
         )
+
+    def destroy_node(self):
+        self.solver.stop()
+        return super().destroy_node()
 
     # --- parameters ---------------------------------------------------------------------
     def _declare_parameters(self):
@@ -245,7 +256,8 @@ class SclamNode(Node):
             if p.name == "calibration_file":
                 self.calibration_file = p.value
             elif p.name == "window_distance":
-                self.calibrator.set_window_distance(float(p.value))
+                with self.lock:
+                    self.calibrator.set_window_distance(float(p.value))
             elif p.name in defaults:
                 value = p.value if isinstance(defaults[p.name], str) else float(p.value)
                 setattr(self.params, p.name, value)
@@ -265,8 +277,10 @@ class SclamNode(Node):
             self._reject(exc.reason, exc.detail)
             return
         try:
-            self._publish_odometry(msg, stamp, left, right)
-            self._handle(self.calibrator.add_encoder(stamp, left, right))
+            with self.lock:
+                self._publish_odometry(msg, stamp, left, right)
+                self.calibrator.add_encoder(stamp, left, right)
+                self._request_solve_if_due()
         except Exception as exc:  # never let one message take the node down
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")
 
@@ -280,9 +294,19 @@ class SclamNode(Node):
             if not math.isfinite(scan.stamp):
                 self._reject("scan_non_finite_stamp", "LaserScan stamp is not finite")
                 return
-            self._handle(self.calibrator.add_scan(scan))
+            with self.lock:
+                self.calibrator.add_scan(scan)
+                self._request_solve_if_due()
         except Exception as exc:
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")
+
+    def _request_solve_if_due(self):
+        if self.calibrator.solve_pending:
+            self.calibrator.solve_pending = False
+            self.solver.request()
+
+    def _solver_failed(self, exc: BaseException):
+        self._reject("internal_error", f"window solve: {type(exc).__name__}: {exc}")
 
     # --- output -------------------------------------------------------------------------
     def _odometry_calibration(self):
@@ -311,9 +335,8 @@ class SclamNode(Node):
         odom.twist.covariance = _covariance36(self.odometry.twist_cov)
         self.odom_pub.publish(odom)
 
-    def _handle(self, estimate):
-        if estimate is None:
-            return
+    def _publish_estimate(self, estimate):
+        """~/laser_pose and ~/wheel_parameters (called on the solver thread)."""
         self.estimates += 1
         stamp = self.get_clock().now().to_msg()
         laser = PoseWithCovarianceStamped()
@@ -334,6 +357,10 @@ class SclamNode(Node):
         self.wheel_pub.publish(wheels)
 
     def diagnostic_status(self) -> DiagnosticStatus:
+        with self.lock:
+            return self._diagnostic_status()
+
+    def _diagnostic_status(self) -> DiagnosticStatus:
         cal = self.calibrator
         estimate = cal.estimate
         values = {
@@ -380,26 +407,29 @@ class SclamNode(Node):
 
     # --- services -----------------------------------------------------------------------
     def _reset_window(self, request, response):
-        self.calibrator.reset_window()
+        with self.lock:
+            self.calibrator.reset_window()
         response.success, response.message = True, "window cleared"
         self.get_logger().info("window reset")
         return response
 
     def _reset_calibration(self, request, response):
-        self.calibrator.reset_calibration()
+        with self.lock:
+            self.calibrator.reset_calibration()
         response.success, response.message = True, "calibration back to nominal"
         self.get_logger().info("calibration reset to nominal")
         return response
 
     def current_params(self) -> SclamParams:
         """The parameters with the current calibration in place of the nominal one."""
-        values = dict(zip(CALIBRATION_KEYS, map(float, self.calibrator.calibration)))
+        with self.lock:
+            values = dict(zip(CALIBRATION_KEYS, map(float, self.calibrator.calibration)))
         return self.params.with_calibration(values)
 
     def _save_calibration(self, request, response):
         try:
             header = "# written by sclam_node ~/save_calibration\n"
-            if self.calibrator.estimate is None:
+            if self.calibrator.estimate is None:  # a reference read: no lock needed
                 header += "# no estimate yet: these are the nominal values\n"
             self.current_params().write_yaml(self.calibration_file, self.get_name(), header)
         except (OSError, ParamsError) as exc:

@@ -358,10 +358,10 @@ def levenberg_marquardt(
         history.append(cost)
         if progress is not None:
             progress(iteration, cost)
-        system = problem.linear_system(values)
         if improvement < relative_tolerance:
             converged = True
             break
+        system = problem.linear_system(values)
     return SolverResult(
         values, iteration, converged, initial_cost, cost, history, time.perf_counter() - start
     )

@@ -16,7 +16,9 @@ Scheme (issue: the online node):
     radii they were driven with — is integrated out (a Schur complement of the information
     AND of the gradient), giving a 4×4 Gaussian that is added to the prior on (b, l).
     Information adds up; the cost of the window stays constant.
-  - Every `solve_every` merged keyframes the window is re-solved by LM.
+  - Every `solve_every` merged keyframes the window is re-solved by LM, warm-started from
+    the previous solve's poses. Inline by default; the node runs the solves on a thread
+    of its own (solver_thread.py) via prepare_solve / run_solve / apply_solve.
 """
 from __future__ import annotations
 
@@ -46,6 +48,11 @@ SLOW_KEYS = ("wheel_base", "laser_x", "laser_y", "laser_yaw")
 # composes to the same edge with no more noise (the errors of consecutive matches are
 # negatively correlated, so they do not average out by matching more often).
 MIN_SCAN_INTERVAL = 0.09  # s: at most ~10 Hz of scans are matched
+# A window solve stops when an LM step lowers the cost by less than this fraction: with a
+# window cost of a few hundred (χ² ≈ dof), 1e-6 is a parameter step of a few % of its σ,
+# and the next solve, warm-started, carries on from there anyway.
+RELATIVE_TOLERANCE = 1e-6
+MAX_ITERATIONS = 10
 
 
 @dataclass
@@ -115,16 +122,7 @@ class KeyframeMerger:
         return out
 
     def _flush(self):
-        segment = self._segment
-        kf = Keyframe(self._count, segment[-1].stamp, segment[-1].wheel_angles)
-        if all(s.dphi is not None for s in segment):
-            kf.dphi = np.sum([s.dphi for s in segment], axis=0)
-        if all(s.laser_motion is not None and s.laser_from == s.index - 1 for s in segment):
-            z, cov = np.zeros(3), np.zeros((3, 3))
-            for s in segment:
-                z = se2.compose(z, s.laser_motion)
-                cov += np.linalg.inv(s.laser_information)
-            kf.laser_from, kf.laser_motion, kf.laser_information = self._count - 1, z, np.linalg.inv(cov)
+        kf = graph_mod.merged_keyframe(self._segment, self._count)
         self._count += 1
         self._last = kf
         self._segment = []
@@ -134,8 +132,10 @@ class KeyframeMerger:
 class OnlineCalibrator:
     """Feeds on encoder samples and scans in arrival order; keeps an up-to-date Estimate."""
 
-    def __init__(self, params, rejections: Optional[Rejections] = None, solve_every: int = 2):
+    def __init__(self, params, rejections: Optional[Rejections] = None, solve_every: int = 2,
+                 inline_solve: bool = True):
         self.params = params
+        self.inline_solve = inline_solve
         self.rejections = rejections if rejections is not None else Rejections()
         self.solve_every = solve_every
         self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
@@ -151,6 +151,9 @@ class OnlineCalibrator:
         self._leaving = []  # keyframes out of the window, waiting to be marginalised
         self._since_solve = 0
         self._last_scan_stamp = None
+        self._solved_poses = {}  # keyframe index -> pose of the last solve (warm start)
+        self.solve_pending = False  # a solve is due (inline_solve False: the caller runs it)
+        self._generation = getattr(self, "_generation", 0) + 1
 
     def reset_calibration(self) -> None:
         """Back to the nominal values and no accumulated information at all."""
@@ -185,7 +188,10 @@ class OnlineCalibrator:
             for kf in self.merger.add(raw):
                 self._append(kf)
                 if self._since_solve >= self.solve_every and len(self.window) >= MIN_WINDOW_KEYFRAMES:
-                    updated = self.solve() or updated
+                    if self.inline_solve:
+                        updated = self.solve() or updated
+                    else:
+                        self.solve_pending = True
         return updated
 
     def _append(self, kf) -> None:
@@ -218,15 +224,35 @@ class OnlineCalibrator:
             self._leaving = [self._leaving[-1]]
 
     # --- estimation -----------------------------------------------------------------------
-    def _problem(self, keyframes, prior_slow=True):
+    def _problem(self, keyframes, prior_slow=True, warm=False):
         keyframes = list(keyframes)
         inputs = graph_mod.GraphInputs.from_keyframes(keyframes)
         extra = []
         if prior_slow and np.linalg.matrix_rank(self.slow.information) == 4:
             extra.append(_SlowPrior(self.slow))
+        poses = self._warm_poses(keyframes, inputs) if warm else None
         return inputs, graph_mod.build_problem(
-            inputs, self.params, self.calibration, nominal=self.nominal, extra_factors=extra
+            inputs, self.params, self.calibration, poses=poses, nominal=self.nominal,
+            extra_factors=extra,
         )
+
+    def _warm_poses(self, keyframes, inputs):
+        """Poses of the last solve where the window still holds them; the new keyframes
+        chained on from there. The window moves by a keyframe or two between solves, so
+        LM starts next to its optimum (measured: ~9 iterations from chained scan matches
+        per solve, see bench/node_latency.py, against 2-3 warm)."""
+        chained = graph_mod.initial_poses(inputs, self.calibration)
+        known = [n for n, kf in enumerate(keyframes) if kf.index in self._solved_poses]
+        if not known or known != list(range(len(known))):
+            return chained
+        last = known[-1]
+        poses = chained.copy()
+        poses[: last + 1] = [self._solved_poses[kf.index] for kf in keyframes[: last + 1]]
+        # The rigid motion taking the chain onto the solved poses at the last known one.
+        align = se2.compose(poses[last], se2.inverse(chained[last]))
+        poses[last + 1:] = se2.compose(np.broadcast_to(align, chained[last + 1:].shape),
+                                       chained[last + 1:])
+        return poses
 
     def _marginalise(self, leaving) -> None:
         """Keep what the leaving keyframes knew about (b, l): a Schur complement.
@@ -261,32 +287,91 @@ class OnlineCalibrator:
         self.slow.add(info, info @ self.calibration[2:] - reduced_gradient)
 
     def solve(self) -> Optional[Estimate]:
-        from .estimator import residual_rms  # estimator imports nothing of the window
+        """Solve the window now, on this thread."""
+        return self.apply_solve(run_solve(self.prepare_solve()))
 
+    # A solve in three steps, so that the node can run the expensive middle one on a
+    # thread of its own while encoder and scan callbacks go on: prepare_solve and
+    # apply_solve touch the calibrator's state (hold the node's lock around them),
+    # run_solve touches nothing but its job.
+    def prepare_solve(self) -> Optional["SolveJob"]:
         self._since_solve = 0
-        inputs, problem = self._problem(self.window)
+        self.solve_pending = False
+        window = list(self.window)
+        if len(window) < MIN_WINDOW_KEYFRAMES:  # a reset came after the request
+            return None
+        inputs, problem = self._problem(window, warm=True)
         if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
             return None
-        result = levenberg_marquardt(problem, max_iterations=10)
-        estimate = graph_mod.calibration_of(result.values)
-        if not np.all(np.isfinite(estimate)):
+        return SolveJob(self._generation, [kf.index for kf in window], float(inputs.stamps[-1]),
+                        problem, len(window), self.window_length())
+
+    def apply_solve(self, outcome: Optional["SolveOutcome"]) -> Optional[Estimate]:
+        if outcome is None:
+            return None
+        job = outcome.job
+        if job.generation != self._generation:
+            return None  # a reset came while it ran: the result belongs to data now forgotten
+        estimate = outcome.calibration
+        if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(outcome.covariance)):
             self.rejections.add("online_solve_non_finite")
             return None
-        cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
         self.calibration = estimate
         self.frontend.calibration = estimate.copy()
+        self._solved_poses = dict(zip(job.keyframe_indices, outcome.poses))
         self.solves += 1
+        cov = outcome.covariance
         self.estimate = Estimate(
-            stamp=float(inputs.stamps[-1]),
+            stamp=job.stamp,
             values=graph_mod.as_dict(estimate),
             sigma=graph_mod.as_dict(np.sqrt(np.clip(np.diag(cov), 0, None))),
             covariance=cov,
-            keyframes_in_window=len(self.window),
-            window_distance=self.window_length(),
-            converged=result.converged,
-            residual_rms=residual_rms(problem, result.values),
+            keyframes_in_window=job.keyframes_in_window,
+            window_distance=job.window_distance,
+            converged=outcome.converged,
+            residual_rms=outcome.residual_rms,
         )
         return self.estimate
+
+
+@dataclass
+class SolveJob:
+    """A window problem to solve, and what it needs to be applied afterwards."""
+
+    generation: int  # OnlineCalibrator._generation when it was prepared
+    keyframe_indices: list
+    stamp: float
+    problem: object
+    keyframes_in_window: int
+    window_distance: float
+
+
+@dataclass
+class SolveOutcome:
+    job: SolveJob
+    calibration: np.ndarray
+    covariance: np.ndarray
+    poses: np.ndarray
+    converged: bool
+    residual_rms: dict
+
+
+def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
+    """LM on a prepared window problem and the marginal covariance of the calibration."""
+    from .estimator import residual_rms  # estimator imports nothing of the window
+
+    if job is None:
+        return None
+    problem = job.problem
+    result = levenberg_marquardt(problem, max_iterations=MAX_ITERATIONS,
+                                 relative_tolerance=RELATIVE_TOLERANCE)
+    calibration = graph_mod.calibration_of(result.values)
+    if not np.all(np.isfinite(calibration)):
+        return SolveOutcome(job, calibration, np.full((6, 6), np.nan), result.values["poses"],
+                            False, {})
+    cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+    return SolveOutcome(job, calibration, cov, result.values["poses"], result.converged,
+                        residual_rms(problem, result.values))
 
 
 class _SlowPrior(factors.Factor):

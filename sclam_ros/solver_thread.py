@@ -1,0 +1,71 @@
+"""The online window solve on a thread of its own.
+
+A window solve takes tens of milliseconds (LM over ~100 poses in numpy). Run in a
+subscription callback it holds up every message queued behind it: at 40 Hz scans and
+100 Hz encoders, ~/odom and the next keyframes waited for it (measured before this
+module: encoder → odom p99 32 ms, bench/node_latency.py). Here the callbacks only append
+keyframes and ask for a solve; this thread prepares the window problem under the shared
+lock (cheap), solves it with the lock released, and applies the result under the lock.
+Requests that arrive while a solve runs are merged into the next one: the solver always
+works on the newest window and never builds a backlog.
+
+The numpy and LAPACK parts of the solve release the GIL, so on a machine with two cores
+the callbacks keep running beside it; the pure-Python parts share the interpreter with
+them in switch-interval slices.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Callable, Optional
+
+from .window import Estimate, OnlineCalibrator, run_solve
+
+
+class SolverThread:
+    def __init__(self, calibrator: OnlineCalibrator, lock: threading.Lock,
+                 on_estimate: Callable[[Estimate], None],
+                 on_error: Callable[[BaseException], None]):
+        self.calibrator = calibrator
+        self.lock = lock
+        self.on_estimate = on_estimate
+        self.on_error = on_error
+        self.requests = 0
+        self.solves_started = 0
+        self._wake = threading.Event()
+        self._stopping = False
+        self._thread = threading.Thread(target=self._run, name="sclam_window_solver", daemon=True)
+        self._thread.start()
+
+    def request(self) -> None:
+        """Ask for a solve of the newest window (call with or without the lock held)."""
+        self.requests += 1
+        self._wake.set()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stopping = True
+        self._wake.set()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        while True:
+            self._wake.wait()
+            self._wake.clear()
+            if self._stopping:
+                return
+            try:
+                estimate = self._solve_once()
+            except Exception as exc:  # noqa: BLE001 - one bad solve must not end the thread
+                self.on_error(exc)
+                continue
+            if estimate is not None:
+                self.on_estimate(estimate)
+
+    def _solve_once(self) -> Optional[Estimate]:
+        with self.lock:
+            job = self.calibrator.prepare_solve()
+        if job is None:
+            return None
+        self.solves_started += 1
+        outcome = run_solve(job)
+        with self.lock:
+            return self.calibrator.apply_solve(outcome)
