@@ -21,7 +21,9 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
 
                          ``layout.dim`` names the rows ("value,sigma") and the columns
                          ("wheel_radius_left,wheel_radius_right,wheel_base").
-  ``/diagnostics``       diagnostic_msgs/DiagnosticArray at 1 Hz (wall clock): window fill,
+  ``/diagnostics``       diagnostic_msgs/DiagnosticArray at 1 Hz (wall clock): window fill
+                         (radii window, and its part kept as poses), radius changes detected
+                         and the last change χ² (window.py),
                          observability of each parameter (σ < ½ prior σ), rejected input by
                          reason, last solve converged.
   ``~/laser_pose`` and ``~/wheel_parameters`` are transient-local: a late subscriber gets the last one.
@@ -368,6 +370,9 @@ class SclamNode(Node):
             "window_length_m": f"{cal.window_length():.3f}",
             "window_distance_m": f"{self.params.window_distance:.3f}",
             "window_fill_percent": f"{100.0 * cal.window_length() / self.params.window_distance:.1f}",
+            "pose_window_length_m": f"{cal.pose_window_length():.3f}",
+            "radius_changes_detected": cal.radius_changes,
+            "radius_change_chi2": f"{cal.change_statistic:.3g}",
             "solves": cal.solves,
             "joint_states_received": self.received["joint_states"],
             "scans_received": self.received["scan"],

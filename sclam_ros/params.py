@@ -126,9 +126,9 @@ class SclamParams:
     )
     # --- online estimation (sclam_node, sclam calibrate --track) --------------------
     window_distance: float = _param(
-        20.0,
+        100.0,
         "distance travelled (mean of both wheels) that the sliding window of the wheel "
-        "radii spans",
+        "radii spans; cut short when a change of the radii is detected",
         _positive,
         "m",
     )

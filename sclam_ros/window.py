@@ -3,19 +3,22 @@
 Scheme (issue: the online node):
   - Arriving keyframes (one per scan) are merged into `params.keyframe_interval` chunks
     before they enter the window, exactly as the batch calibrator merges them
-    (graph.merge_keyframes): the same long edges, so the same small regression-dilution
-    bias of the wheel base, and ~5× fewer poses to solve for.
-  - The window holds the merged keyframes of the last `window_distance` metres travelled,
-    and at most MAX_WINDOW_KEYFRAMES of them, so standing still cannot grow it: the cost
-    of a solve is bounded whatever the robot does. The wheel radii are estimated from this
-    window only: when a load compresses the tyres, the old data leaves the window and stops
-    pulling.
-  - The wheel base and the laser pose do not drift; the information the leaving keyframes
-    held about them is kept. Leaving keyframes are marginalised in chunks: their edges are
-    linearised at the current estimate and everything but (b, l) — their poses and the
-    radii they were driven with — is integrated out (a Schur complement of the information
-    AND of the gradient), giving a 4×4 Gaussian that is added to the prior on (b, l).
-    Information adds up; the cost of the window stays constant.
+    (graph.merge_keyframes): the same long edges and per-scan arcs, and ~5× fewer poses.
+  - The radii are estimated from the last `window_distance` metres travelled (the radii
+    window). Only its newest POSE_WINDOW_DISTANCE metres are kept as poses in the graph
+    that is solved (and at most MAX_WINDOW_KEYFRAMES, so standing still cannot grow it):
+    the cost of a solve is bounded whatever the robot does. Older keyframes are
+    marginalised in chunks: their edges are linearised at the current estimate and their
+    poses integrated out (a Schur complement of the information AND of the gradient),
+    leaving a 6×6 Gaussian on the calibration per chunk (marginal.py).
+  - While a chunk is inside the radii window its whole Gaussian is a prior of the solve.
+    When it leaves, its radii are integrated out too and only what it said about (b, l)
+    is kept, for good: the wheel base and the laser do not drift, the radii may.
+  - A load changes the radii at once. After every solve the radii's move away from the
+    prior is tested (marginal.radius_change_statistic, χ², 2 dof); above CHANGE_CHI2 on
+    CHANGE_CONFIRMATIONS solves in a row, the radii window is cut to the pose window: the
+    chunks' radii information is dropped, their (b, l) kept. So a long window (precise
+    radii while nothing changes) does not make the estimate slow to follow a change.
   - Every `solve_every` merged keyframes the window is re-solved by LM, warm-started from
     the previous solve's poses. Inline by default; the node runs the solves on a thread
     of its own (solver_thread.py) via prepare_solve / run_solve / apply_solve.
@@ -28,9 +31,10 @@ from typing import Optional
 
 import numpy as np
 
-from . import factors, graph as graph_mod, kinematics, se2
+from . import graph as graph_mod, kinematics, se2
 from .frontend import Frontend, Keyframe
 from .inputs import Rejections
+from .marginal import CalibrationPriorFactor, Gaussian, gaussian_of_prior, radius_change_statistic
 from .params import CALIBRATION_KEYS
 from .solver import levenberg_marquardt, marginal_covariance
 
@@ -41,7 +45,14 @@ MAX_WINDOW_KEYFRAMES = 400
 MARGINALISE_BATCH = 20
 # Fewer keyframes than this in the window: no solve (too little to say anything).
 MIN_WINDOW_KEYFRAMES = 6
-SLOW_KEYS = ("wheel_base", "laser_x", "laser_y", "laser_yaw")
+# Metres of the radii window kept as poses in the solved graph (the rest is marginalised).
+# 20 m is ~90 keyframes at 0.45 m/s: a solve of ~15-30 ms.
+POSE_WINDOW_DISTANCE = 10.0
+# A radius change is declared when the radii's χ² move (2 dof) exceeds this on this many
+# solves in a row: p = 1e-4 per solve under no change, and solves are 1 s apart, so a
+# false alarm is rare, and costs only the precision of the dropped history.
+CHANGE_CHI2 = 9.21
+CHANGE_CONFIRMATIONS = 3
 # Scans closer than this to the last one used are skipped: the window merges scans into
 # keyframe_interval edges anyway, and a 40 Hz / 1080-beam laser matched scan by scan needs
 # a whole core (measured: bench/node_latency.py). A chain of fewer, longer scan matches
@@ -71,23 +82,6 @@ class Estimate:
 
     def vector(self):
         return np.array([self.values[k] for k in CALIBRATION_KEYS])
-
-
-@dataclass
-class _Slow:
-    """Accumulated Gaussian on (b, l_x, l_y, l_yaw) from marginalised keyframes."""
-
-    information: np.ndarray = field(default_factory=lambda: np.zeros((4, 4)))
-    eta: np.ndarray = field(default_factory=lambda: np.zeros(4))  # information vector
-
-    def add(self, info, eta):
-        self.information = self.information + info
-        self.eta = self.eta + eta
-
-    def mean(self, fallback):
-        if np.linalg.matrix_rank(self.information) < 4:
-            return fallback
-        return np.linalg.solve(self.information, self.eta)
 
 
 class KeyframeMerger:
@@ -149,6 +143,8 @@ class OnlineCalibrator:
         self.window = deque()
         self._distance = deque()  # metres travelled by each keyframe's odometry edge
         self._leaving = []  # keyframes out of the window, waiting to be marginalised
+        self._leaving_metres = 0.0
+        self.forget_radii()  # the chunks' radii go, their (b, l) stays
         self._since_solve = 0
         self._last_scan_stamp = None
         self._solved_poses = {}  # keyframe index -> pose of the last solve (warm start)
@@ -159,7 +155,10 @@ class OnlineCalibrator:
         """Back to the nominal values and no accumulated information at all."""
         self.calibration = self.nominal.copy()
         self.frontend.calibration = self.calibration.copy()
-        self.slow = _Slow()
+        self.permanent = Gaussian()  # (b, l) from data gone from the radii window
+        self.history = deque()  # _Chunk, oldest first: marginalised part of the radii window
+        self.radius_changes = 0  # times a change of the radii was detected
+        self.change_statistic = float("nan")  # of the last solve
         self.estimate: Optional[Estimate] = None
         self.solves = 0
         self.skipped_scans = 0  # scans not matched, see MIN_SCAN_INTERVAL
@@ -168,6 +167,12 @@ class OnlineCalibrator:
     def set_window_distance(self, metres: float) -> None:
         self.params.window_distance = float(metres)
         self._trim()
+
+    def forget_radii(self) -> None:
+        """Cut the radii window to the pose window (a change of the radii was detected)."""
+        while self.history:
+            self.permanent = self.permanent + self.history.popleft().gaussian.without_radii()
+        self._over_threshold = 0
 
     # --- data -----------------------------------------------------------------------------
     def add_encoder(self, stamp, left_raw, right_raw) -> Optional[Estimate]:
@@ -204,37 +209,53 @@ class OnlineCalibrator:
         self._trim()
         self._since_solve += 1
 
-    def window_length(self) -> float:
+    def pose_window_length(self) -> float:
         return float(sum(self._distance))
 
+    def window_length(self) -> float:
+        """Metres of travel the radii are estimated from (poses + marginalised chunks)."""
+        return self.pose_window_length() + sum(c.metres for c in self.history)
+
     def _trim(self) -> None:
-        leaving = []
+        pose_limit = min(self.params.window_distance, POSE_WINDOW_DISTANCE)
         while len(self.window) > 2 and (
-            self.window_length() - self._distance[0] > self.params.window_distance
+            self.pose_window_length() - self._distance[0] > pose_limit
             or len(self.window) > MAX_WINDOW_KEYFRAMES
         ):
-            leaving.append(self.window.popleft())
-            self._distance.popleft()
-        self._leaving.extend(leaving)
+            self._leaving.append(self.window.popleft())
+            self._leaving_metres += self._distance.popleft()
         if len(self._leaving) >= MARGINALISE_BATCH:
-            self._marginalise(self._leaving)
+            gaussian = self._marginalise(self._leaving)
+            if gaussian is not None:
+                self.history.append(_Chunk(gaussian, self._leaving_metres))
             # The last leaving keyframe stays as the start of the next chunk so the edges
             # between chunks are not lost (each edge is counted in exactly one chunk: the
             # edge into the window's first keyframe is not in the window's graph).
             self._leaving = [self._leaving[-1]]
+            self._leaving_metres = 0.0
+        while self.history and self.window_length() > self.params.window_distance:
+            self.permanent = self.permanent + self.history.popleft().gaussian.without_radii()
 
     # --- estimation -----------------------------------------------------------------------
-    def _problem(self, keyframes, prior_slow=True, warm=False):
+    def _problem(self, keyframes, with_prior=True, warm=False):
         keyframes = list(keyframes)
         inputs = graph_mod.GraphInputs.from_keyframes(keyframes)
         extra = []
-        if prior_slow and np.linalg.matrix_rank(self.slow.information) == 4:
-            extra.append(_SlowPrior(self.slow))
+        prior = self.prior()
+        if with_prior and not prior.is_empty():
+            extra.append(CalibrationPriorFactor(prior))
         poses = self._warm_poses(keyframes, inputs) if warm else None
         return inputs, graph_mod.build_problem(
             inputs, self.params, self.calibration, poses=poses, nominal=self.nominal,
             extra_factors=extra,
         )
+
+    def prior(self) -> Gaussian:
+        """What the marginalised data says about the calibration."""
+        prior = self.permanent
+        for chunk in self.history:
+            prior = prior + chunk.gaussian
+        return prior
 
     def _warm_poses(self, keyframes, inputs):
         """Poses of the last solve where the window still holds them; the new keyframes
@@ -254,37 +275,35 @@ class OnlineCalibrator:
                                        chained[last + 1:])
         return poses
 
-    def _marginalise(self, leaving) -> None:
-        """Keep what the leaving keyframes knew about (b, l): a Schur complement.
+    def _marginalise(self, leaving) -> Optional[Gaussian]:
+        """What the leaving keyframes knew about the calibration: a Schur complement.
 
         H = JᵀJ and g = Jᵀr of the leaving edges alone, linearised at x₀ = (the
         current calibration, poses chained from the scan matches, which are close to their
-        optimum), over (poses, k, l); everything but s = (b, l) is integrated out:
-            Λ = H_ss − H_sr H_rr⁺ H_rs,   g' = g_s − H_sr H_rr⁺ g_r,
-        a Gaussian with information Λ and information vector η = Λ s₀ − g' (its mean is
-        the chunk's own Gauss-Newton optimum for s, not the current estimate: without g'
-        the prior would only echo the estimate it was taken at). A short chunk alone
-        cannot determine its radii, so H_rr may be singular: the pseudo-inverse keeps
+        optimum), over (poses, k, l); the poses are integrated out:
+            Λ = H_cc − H_cp H_pp⁺ H_pc,   g' = g_c − H_cp H_pp⁺ g_p,
+        a Gaussian with information Λ and information vector η = Λ c₀ − g' (its mean is
+        the chunk's own Gauss-Newton optimum for c, not the current estimate: without g'
+        the prior would only echo the estimate it was taken at). The pseudo-inverse keeps
         exactly the information that is there and no more.
         """
-        inputs, problem = self._problem(leaving, prior_slow=False)
+        inputs, problem = self._problem(leaving, with_prior=False)
         if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
-            return
+            return None
         problem.factors = [f for f in problem.factors if f.measurement]
         system = problem.linear_system(problem.values)
         jac = system.jacobian.toarray()
         hessian = jac.T @ jac
         gradient = jac.T @ system.residual
         layout = problem.layout
-        odo_cols = layout.columns("odometry")
-        slow = np.concatenate([odo_cols[2:], layout.columns("laser")])
-        rest = np.setdiff1d(np.arange(layout.size), slow)
-        h_sr = hessian[np.ix_(slow, rest)]
-        h_rr_pinv = np.linalg.pinv(hessian[np.ix_(rest, rest)], hermitian=True)
-        info = hessian[np.ix_(slow, slow)] - h_sr @ h_rr_pinv @ h_sr.T
+        calib = np.concatenate([layout.columns("odometry"), layout.columns("laser")])
+        poses = np.setdiff1d(np.arange(layout.size), calib)
+        h_cp = hessian[np.ix_(calib, poses)]
+        h_pp_pinv = np.linalg.pinv(hessian[np.ix_(poses, poses)], hermitian=True)
+        info = hessian[np.ix_(calib, calib)] - h_cp @ h_pp_pinv @ h_cp.T
         info = 0.5 * (info + info.T)
-        reduced_gradient = gradient[slow] - h_sr @ h_rr_pinv @ gradient[rest]
-        self.slow.add(info, info @ self.calibration[2:] - reduced_gradient)
+        reduced_gradient = gradient[calib] - h_cp @ h_pp_pinv @ gradient[poses]
+        return Gaussian(info, info @ self.calibration - reduced_gradient)
 
     def solve(self) -> Optional[Estimate]:
         """Solve the window now, on this thread."""
@@ -303,8 +322,10 @@ class OnlineCalibrator:
         inputs, problem = self._problem(window, warm=True)
         if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
             return None
+        prior = self.prior() + gaussian_of_prior(self.nominal, graph_mod.prior_sigmas(self.nominal))
         return SolveJob(self._generation, [kf.index for kf in window], float(inputs.stamps[-1]),
-                        problem, len(window), self.window_length())
+                        problem, len(window), self.window_length(), prior,
+                        has_history=bool(self.history))
 
     def apply_solve(self, outcome: Optional["SolveOutcome"]) -> Optional[Estimate]:
         if outcome is None:
@@ -331,7 +352,18 @@ class OnlineCalibrator:
             converged=outcome.converged,
             residual_rms=outcome.residual_rms,
         )
+        self._test_for_radius_change(job, estimate, cov)
         return self.estimate
+
+    def _test_for_radius_change(self, job, mean, cov) -> None:
+        if not job.has_history:
+            self.change_statistic = float("nan")
+            return
+        self.change_statistic = radius_change_statistic(job.prior, mean, cov)
+        self._over_threshold = self._over_threshold + 1 if self.change_statistic > CHANGE_CHI2 else 0
+        if self._over_threshold >= CHANGE_CONFIRMATIONS:
+            self.radius_changes += 1
+            self.forget_radii()
 
 
 @dataclass
@@ -344,6 +376,8 @@ class SolveJob:
     problem: object
     keyframes_in_window: int
     window_distance: float
+    prior: Gaussian  # every prior of the problem, for the change test
+    has_history: bool  # marginalised radii information to test against
 
 
 @dataclass
@@ -374,32 +408,9 @@ def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
                         residual_rms(problem, result.values))
 
 
-class _SlowPrior(factors.Factor):
-    """The accumulated Gaussian on (b, l) as a factor over the odometry and laser blocks."""
+@dataclass
+class _Chunk:
+    """Marginalised keyframes still inside the radii window."""
 
-    name = "marginal_prior"
-    measurement = False
-
-    def __init__(self, slow: _Slow):
-        self.mean = slow.mean(None)
-        self._sqrt_info = factors.sqrt_information(
-            (slow.information + 1e-12 * np.eye(4))[None]
-        )
-
-    def __len__(self):
-        return 1
-
-    def linearize(self, values):
-        current = np.concatenate([values["odometry"][0][2:], values["laser"][0]])
-        residual = current - self.mean
-        residual[3] = (residual[3] + np.pi) % (2 * np.pi) - np.pi
-        j_odo = np.zeros((1, 4, 3))
-        j_odo[0, 0, 2] = 1.0
-        j_laser = np.zeros((1, 4, 3))
-        j_laser[0, 1:, :] = np.eye(3)
-        zeros = np.zeros(1, int)
-        return factors.Linearization(
-            residual[None], self._sqrt_info,
-            [factors.JacobianBlock("odometry", zeros, j_odo),
-             factors.JacobianBlock("laser", zeros, j_laser)],
-        )
+    gaussian: Gaussian
+    metres: float

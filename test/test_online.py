@@ -12,7 +12,8 @@ from sclam_ros.graph import merge_keyframes
 from sclam_ros.offline import read_recording
 from sclam_ros.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
-from sclam_ros.window import KeyframeMerger
+from sclam_ros.offline import iter_keyframes
+from sclam_ros.window import POSE_WINDOW_DISTANCE, KeyframeMerger, OnlineCalibrator
 
 DURATION = 200.0
 CHANGE_AT = 100.0  # s after the start
@@ -62,6 +63,25 @@ def test_tracked_radii_follow_a_load_change(load_change):
         assert abs(mean_after - new) < 3 * sigma[after].mean(), key
         if key == "wheel_radius_left":
             assert abs(mean_after - new) < abs(mean_after - old)
+
+
+def test_radius_change_detected_after_the_change_only(load_change):
+    """The radii window is cut (window.py: change test) once, after the change and within a
+    minute of it; before it the window keeps growing past the pose window."""
+    bag, truth, _ = load_change
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    calibrator = OnlineCalibrator(params)
+    detected, longest_before = [], 0.0
+    for kf in iter_keyframes(bag, params, calibrator.frontend):
+        changes = calibrator.radius_changes
+        calibrator.add_keyframes([kf])
+        t = kf.stamp - truth["start_time"]
+        if calibrator.radius_changes > changes:
+            detected.append(t)
+        if t < CHANGE_AT:
+            longest_before = max(longest_before, calibrator.window_length())
+    assert len(detected) == 1 and CHANGE_AT < detected[0] < CHANGE_AT + 60, detected
+    assert longest_before > 2 * POSE_WINDOW_DISTANCE  # the marginalised part counts
 
 
 def test_incremental_merge_equals_the_batch_merge(load_change):
