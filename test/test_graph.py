@@ -4,7 +4,7 @@ import pytest
 
 from sclam_ros import se2
 from sclam_ros.frontend import Keyframe
-from sclam_ros.graph import merge_keyframes
+from sclam_ros.graph import SCAN_MATCH_LAG1_CORRELATION, chained_scan_match_covariance, merge_keyframes
 
 
 def chain(n, rng, broken=()):
@@ -28,7 +28,24 @@ def test_merging_adds_wheel_angles_and_composes_scan_matches():
     for k in kfs[1:6]:
         z = se2.compose(z, k.laser_motion)
     assert np.allclose(merged[1].laser_motion, z)
-    assert np.allclose(np.linalg.inv(merged[1].laser_information), 5e-4 * np.eye(3))
+    # Five matches of covariance 1e-4 I with lag-1 correlation ρ: (5 + 8ρ)·1e-4 I.
+    expected = (5 + 8 * SCAN_MATCH_LAG1_CORRELATION) * 1e-4 * np.eye(3)
+    assert np.allclose(np.linalg.inv(merged[1].laser_information), expected)
+
+
+def test_chained_covariance_matches_a_simulated_ma1_chain():
+    """Errors that share a scan, e = n_i + θ n_{i−1} with θ = −0.5 (lag-1 correlation
+    θ / (1 + θ²) = −0.4): the variance of their sum, sampled, against the formula."""
+    rng = np.random.default_rng(4)
+    theta, n, draws = -0.5, 5, 200_000
+    noise = rng.standard_normal((draws, n + 1))
+    errors = noise[:, 1:] + theta * noise[:, :-1]
+    sampled = np.var(errors.sum(axis=1))
+    part = np.array([[1 + theta**2]])  # variance of one error
+    formula = chained_scan_match_covariance([part] * n)[0, 0]
+    assert theta / (1 + theta**2) == pytest.approx(SCAN_MATCH_LAG1_CORRELATION)
+    assert formula == pytest.approx(sampled, rel=0.02)
+    assert formula < 0.5 * n * part[0, 0]  # far below the independent sum
 
 
 def test_a_missing_scan_match_is_not_bridged():
