@@ -16,7 +16,8 @@ N = 6
 
 def data():
     stamps = np.cumsum(rng.uniform(0.3, 0.6, N))
-    return EffectData(stamps, rng.normal(0, 3, (N, 2)), rng.normal(0, 5, (N, 2)))
+    return EffectData(stamps, rng.normal(0, 3, (N, 2)), rng.normal(0, 5, (N, 2)),
+                      rng.normal(0, 1, N))
 
 
 def values_with(effects, p=None):
@@ -38,7 +39,8 @@ def merged_parts():
 
 @pytest.mark.parametrize("merged", [False, True])
 @pytest.mark.parametrize("names", [["time_offset"], ["lateral_slip"], ["radius_drift"],
-                                   ["time_offset", "lateral_slip", "radius_drift"]])
+                                   ["scan_distortion"],
+                                   ["time_offset", "lateral_slip", "radius_drift", "scan_distortion"]])
 def test_odometry_effect_jacobians(names, merged):
     d = data()
     effects = [LIBRARY[n](d) for n in names]
@@ -99,6 +101,66 @@ def test_extend_problem_keeps_the_parts():
     odo = next(f for f in ext.factors if f.name == "odometry")
     assert isinstance(odo, EffectOdometryFactor) and np.array_equal(odo.parts, base.parts)
     assert np.allclose(odo.residuals(ext.values), base.residuals(values), rtol=0, atol=1e-14)
+
+
+def test_scan_distortion_delay_is_a_clock_offset():
+    """The sweep delay τ shifts the odometry window exactly as a clock offset δ = τ does."""
+    d = data()
+    to, sd = LIBRARY["time_offset"](d), LIBRARY["scan_distortion"](d)
+    dphi = rng.normal(0, 2, (N - 1, 2))
+    i, j = np.arange(N - 1), np.arange(1, N)
+    assert np.allclose(to.adjust_dphi(dphi, [0.05], i, j)[0],
+                       sd.adjust_dphi(dphi, [0.05, 0.3, -0.2], i, j)[0])
+
+
+def test_scan_distortion_corrects_a_turn_rate_change():
+    """A match shifted by −g·(ω_j − ω_i) comes back; at a constant turn rate (an
+    on-the-spot turn) nothing changes."""
+    turn = np.array([0.0, 0.8, 0.8, -0.5, -0.5, 0.0])
+    d = EffectData(np.arange(N) * 0.5, np.zeros((N, 2)), None, turn)
+    g = np.array([0.04, -0.01])
+    i, j = np.arange(N - 1), np.arange(1, N)
+    truth = np.column_stack([rng.normal(0, 0.3, (N - 1, 2)), rng.uniform(-0.4, 0.4, N - 1)])
+    measured = truth.copy()
+    measured[:, :2] -= np.outer(turn[j] - turn[i], g)
+    effect = LIBRARY["scan_distortion"](d)
+    assert np.allclose(effect.adjust_z(measured, np.r_[0.0, g], i, j)[0], truth)
+    constant = [1, 3]  # edges 1→2 and 3→4 turn at a constant rate
+    assert np.allclose(effect.adjust_z(truth, np.r_[0.0, g], i, j)[0][constant], truth[constant])
+
+
+def test_turn_rates_from_scan_matches():
+    from sclam_ros.frontend import Keyframe
+
+    t = np.arange(0, 2, 0.1)
+    kfs = [Keyframe(i, s, np.zeros(2)) for i, s in enumerate(t)]
+    for kf in kfs[1:]:
+        if kf.index != 7:  # a failed match: bridged by interpolation
+            kf.laser_from, kf.laser_motion = kf.index - 1, np.array([0.05, 0.0, 0.1 * kf.stamp])
+    d = EffectData.from_keyframes(kfs, t[2:-2])
+    # Heading change 0.1·t_k over 0.1 s: rate t_k, placed at t_k − 0.05.
+    assert np.allclose(d.turn_rates, t[2:-2] + 0.05)
+
+
+def test_floor_noise_recovers_region_factors():
+    """Synthetic disagreements with four times the odometry variance where x > median:
+    the regions split at the medians (equal counts), the factors' ratio comes back."""
+    from sclam_ros.diagnose import Disagreement
+
+    m = 4000
+    local = np.random.default_rng(3)
+    positions = np.column_stack([local.uniform(0, 20, m + 1), local.uniform(0, 5, m + 1)])
+    positions[:, 1] += np.where(positions[:, 0] > 10, 3.0, 0.0)  # an L-ish spread
+    effect = LIBRARY["floor_noise"](EffectData(np.arange(m + 1.0), np.zeros((m + 1, 2)), positions))
+    pose_i, pose_j = np.arange(m), np.arange(m)  # an edge at each position
+    odometry_cov = np.tile(np.diag([4e-6, 1e-6, 3e-5]), (m, 1, 1))
+    laser_cov = np.tile(np.diag([1e-6, 1e-6, 2e-6]), (m, 1, 1))
+    truth = np.where(positions[:m, 0] > 10, 4.0, 1.0)
+    cov = odometry_cov * truth[:, None, None] + laser_cov
+    d = np.einsum("mij,mj->mi", np.linalg.cholesky(cov), local.standard_normal((m, 3)))
+    effect.fit(pose_i, pose_j, Disagreement(d, odometry_cov, laser_cov).nll)
+    assert np.bincount(effect.region(pose_i, pose_j)).tolist() == [m // 4] * 4
+    assert effect.value() == pytest.approx(4.0, rel=0.2)
 
 
 def test_wheel_speeds_from_keyframes():

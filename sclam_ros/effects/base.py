@@ -30,6 +30,10 @@ class EffectData:
     stamps: np.ndarray  # (n,) s
     wheel_speeds: np.ndarray  # (n, 2) rad/s, wheel angular speeds at the pose's stamp
     positions: np.ndarray = None  # (n, 2) m, fitted positions (noise regions)
+    # (n,) rad/s, the turn rate from the scan matches alone (the laser turns with the
+    # body), so effects on the laser side do not depend on the wheel calibration.
+    turn_rates: np.ndarray = None
+
 
     @property
     def reference_time(self) -> float:
@@ -39,7 +43,8 @@ class EffectData:
     @classmethod
     def from_keyframes(cls, raw_keyframes, stamps, positions=None):
         """Wheel speeds at the graph's stamps by central differences of the raw keyframes'
-        cumulative wheel angles (one keyframe per scan, so ±1 scan period)."""
+        cumulative wheel angles (one keyframe per scan, so ±1 scan period); turn rates
+        and turn rates from the raw keyframes' scan matches."""
         raw_t = np.array([kf.stamp for kf in raw_keyframes], float)
         raw_phi = np.array([kf.wheel_angles for kf in raw_keyframes], float).reshape(-1, 2)
         if len(raw_t) >= 2:
@@ -48,7 +53,30 @@ class EffectData:
             speeds = np.zeros_like(raw_phi)
         stamps = np.asarray(stamps, float)
         omega = np.column_stack([np.interp(stamps, raw_t, speeds[:, c]) for c in range(2)])
-        return cls(stamps, omega, None if positions is None else np.asarray(positions, float))
+        return cls(stamps, omega, None if positions is None else np.asarray(positions, float),
+                   laser_turn_rates(raw_keyframes, stamps))
+
+
+def laser_turn_rates(raw_keyframes, stamps):
+    """Turn rate (rad/s) at `stamps`: each scan match's heading change over its interval,
+    placed at the interval's middle, interpolated (across failed matches too)."""
+    by_index = {kf.index: kf for kf in raw_keyframes}
+    mid, rate = [], []
+    for kf in raw_keyframes:
+        before = by_index.get(kf.laser_from) if kf.laser_motion is not None else None
+        if before is not None and kf.stamp > before.stamp:
+            mid.append(0.5 * (kf.stamp + before.stamp))
+            rate.append(kf.laser_motion[2] / (kf.stamp - before.stamp))
+    if not mid:
+        return np.zeros(len(stamps))
+    return np.interp(stamps, mid, rate)
+
+
+def largest_signed(p) -> float:
+    """The parameter of the largest magnitude, with its sign (the one number reported for
+    a per-wheel or per-axis effect)."""
+    p = np.asarray(p, float).ravel()
+    return float(p[np.argmax(np.abs(p))])
 
 
 class ModelEffect:
@@ -58,14 +86,18 @@ class ModelEffect:
     dim = 1
     units = ""  # of the parameter(s), for the report
     doc = ""
-    # Which edge model the effect bends: "odometry", "laser" or "noise" (a noise model,
-    # estimated from residuals rather than by least squares).
+    # Which edge model the effect bends: "odometry", "laser", both ("odometry+laser") or
+    # "noise" (a noise model, estimated from residuals rather than by least squares).
     kind = "odometry"
     # 1σ of the weak zero-mean prior that keeps an unexcited effect well-posed.
     prior_sigma = 1.0
 
     def __init__(self, data: EffectData):
         self.data = data
+
+    def bends(self, model: str) -> bool:
+        """Whether the effect's hooks act on `model` ("odometry" or "laser") edges."""
+        return model in self.kind.split("+")
 
     def initial(self) -> np.ndarray:
         return np.zeros(self.dim)

@@ -34,7 +34,7 @@ class EffectOdometryFactor(factors.OdometryFactor):
 
     def __init__(self, pose_i, pose_j, dphi, information, effects, parts=None):
         super().__init__(pose_i, pose_j, dphi, information, parts=parts)
-        self.effects = [e for e in effects if e.kind == "odometry"]
+        self.effects = [e for e in effects if e.bends("odometry")]
 
     def predicted_motion_with_jacobians(self, values):
         """m (m,3), ∂m/∂k (m,3,3) and {effect: ∂m/∂p}."""
@@ -102,7 +102,7 @@ class EffectLaserFactor(factors.LaserFactor):
 
     def __init__(self, pose_i, pose_j, z, information, effects):
         super().__init__(pose_i, pose_j, z, information)
-        self.effects = [e for e in effects if e.kind == "laser"]
+        self.effects = [e for e in effects if e.bends("laser")]
 
     def corrected_z(self, values):
         z, d_p = self.z, {}

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import ModelEffect
+from .base import ModelEffect, largest_signed
 
 
 class RadiusDrift(ModelEffect):
@@ -32,5 +32,4 @@ class RadiusDrift(ModelEffect):
 
     def value(self, p):
         """The drift of the larger-drifting wheel (fraction/hour), signed."""
-        p = np.asarray(p, float).ravel()
-        return float(p[np.argmax(np.abs(p))])
+        return largest_signed(p)

@@ -20,8 +20,12 @@ class TimeOffset(ModelEffect):
     prior_sigma = 0.5
 
     def adjust_dphi(self, dphi, p, i, j):
-        w = self.data.wheel_speeds
-        change = w[j] - w[i]  # (m, 2)
-        m = len(dphi)
-        return (dphi + p[0] * change, np.broadcast_to(np.eye(2), (m, 2, 2)),
-                change[:, :, None])
+        return clock_shift(self.data, dphi, p[0], i, j)
+
+
+def clock_shift(data, dphi, delta, i, j):
+    """The increments of the window [t_i, t_j] shifted by δ, to first order, with their
+    Jacobians wrt dφ (m,2,2) and δ (m,2,1)."""
+    change = data.wheel_speeds[j] - data.wheel_speeds[i]  # (m, 2)
+    return (dphi + delta * change, np.broadcast_to(np.eye(2), (len(dphi), 2, 2)),
+            change[:, :, None])
