@@ -110,37 +110,28 @@ def read_breezyslam(path):
     return stamps, ticks, ranges
 
 
-def repair_ticks(stamps, ticks, ranges, tick_shift: int):
-    """Scan of log line i paired with the ticks of line i + tick_shift; lines without a
-    partner are dropped.
-
-    On exp1/exp2, tick_shift −1 (each line's ticks belong to the previous line's scan)
-    is what `sclam diagnose` traced (docs/measured_data.md): as logged it selects a clock
-    offset of ≈ −1.2 scan periods, re-paired the held-out error drops by 2–3 nats/edge.
-    """
-    n = len(stamps)
-    lines = np.arange(max(0, -tick_shift), min(n, n - tick_shift))
-    return stamps[lines], ticks[lines + tick_shift], ranges[lines]
-
-
-def convert_breezyslam(src, out, storage="sqlite3", tick_shift: int = 0) -> dict:
-    stamps, ticks, ranges = repair_ticks(*read_breezyslam(src), tick_shift)
+def convert_breezyslam(src, out, storage="sqlite3", scan_delay: float = 0.0) -> dict:
+    """``scan_delay`` (s): each line's scan was taken this long before the line's stamp;
+    the scan is stamped that much earlier (recorded at the line's time, as a late message
+    would be), and the encoder ticks, interpolated at the scan stamps by the frontend, stay
+    at their own stamps. The logs give no delay; `sclam diagnose` finds one (selects
+    time_offset ≈ −0.12 to −0.14 s as logged, docs/measured_data.md)."""
+    stamps, ticks, ranges = read_breezyslam(src)
     out = _prepare(out)
     increment = URG_FOV / (URG_BEAMS - 1)
     with BagWriter(out / "bag", storage) as bag:
         for stamp, tick, row in zip(stamps, ticks, ranges):
             bag.write_joint_state("/joint_states", stamp, JOINTS, tick)
-            # Scan stamp = the log line's stamp; the log does not say whether it marks the
-            # first beam or the end of the sweep, so no per-beam time is claimed
-            # (time_increment 0: no de-skewing).
+            # Scan stamp = the log line's stamp − scan_delay; the log does not say whether
+            # it marks the first beam or the end of the sweep, so no per-beam time is
+            # claimed (time_increment 0: no de-skewing).
             bag.write_scan("/scan", Scan(
-                stamp=stamp, ranges=row, angle_min=-URG_FOV / 2, angle_increment=increment,
-                range_min=URG_RANGE_MIN, range_max=URG_RANGE_MAX, time_increment=0.0,
-                frame_id="laser"), scan_time=0.1)
-    repaired = (f"; the scan of log line i paired with the encoder ticks of line i{tick_shift:+d}"
-                if tick_shift else "")
+                stamp=stamp - scan_delay, ranges=row, angle_min=-URG_FOV / 2,
+                angle_increment=increment, range_min=URG_RANGE_MIN, range_max=URG_RANGE_MAX,
+                time_increment=0.0, frame_id="laser"), record_time_s=stamp, scan_time=0.1)
+    delayed = f"; scans stamped {scan_delay * 1e3:.0f} ms before their log line" if scan_delay else ""
     _finish(out, src, BREEZYSLAM, breezyslam_params(),
-            f"{len(stamps)} scans and encoder readings, {stamps[-1] - stamps[0]:.1f} s{repaired}")
+            f"{len(stamps)} scans and encoder readings, {stamps[-1] - stamps[0]:.1f} s{delayed}")
     return {"scans": len(stamps), "duration_s": float(stamps[-1] - stamps[0])}
 
 

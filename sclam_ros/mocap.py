@@ -62,18 +62,79 @@ def initial_mount_yaw(inputs: graph_mod.GraphInputs, k) -> float:
     return float(np.angle(np.sum(a * np.conj(z))))
 
 
-def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=10):
-    inputs = graph_inputs(stamps, ticks, truth, params.ticks_per_revolution, step)
-    k = np.array([params.wheel_radius_left, params.wheel_radius_right, params.wheel_base])
+def build_problem(inputs, params: SclamParams, k, fix_k=False):
+    """The calibration graph of a run against its motion capture, started at k and the
+    closed-form mount yaw; ``fix_k`` holds k there (only the mount and poses move)."""
+    k = np.asarray(k, float)
     nominal = np.concatenate([k, [0.0, 0.0, initial_mount_yaw(inputs, k)]])
     problem = graph_mod.build_problem(
         inputs, params.with_calibration(dict(zip(CALIBRATION_KEYS, nominal))), nominal)
+    if fix_k:
+        problem = type(problem)(problem.values, problem.factors,
+                                fixed={**problem.fixed, "odometry": np.array([0])},
+                                kernels=problem.kernels, scales=problem.scales)
+    return problem
+
+
+def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=10,
+                                fixed_k=None):
+    """k = (r_l, r_r, b) and the marker mount from the run; with ``fixed_k``, k is held
+    there and only the mount (and the poses) are fitted: how another calibration is
+    aligned with this run's motion capture (σ of the held k: 0)."""
+    inputs = graph_inputs(stamps, ticks, truth, params.ticks_per_revolution, step)
+    nominal_k = [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base]
+    held = fixed_k is not None
+    problem = build_problem(inputs, params, fixed_k if held else nominal_k, fix_k=held)
     result, scales = solve_with_variance_components(problem)
-    cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+    cov = marginal_covariance(problem, result.values, ["laser"] if held else ["odometry", "laser"])
+    sigma = np.sqrt(np.diag(cov))
     return MocapCalibration(
         estimate=graph_mod.calibration_of(result.values),
-        sigma=np.sqrt(np.diag(cov)),
+        sigma=np.concatenate([np.zeros(3), sigma]) if held else sigma,
         keyframes=inputs.size,
         variance_scales=dict(scales),
         converged=result.converged,
     )
+
+
+# --- open-loop check: dead reckoning against motion capture -------------------------------
+
+
+def dead_reckoning(ticks, k, ticks_per_revolution) -> np.ndarray:
+    """Body poses (n, 3) from the wheel ticks alone, starting at the origin at cycle 0."""
+    dphi = np.diff(np.asarray(ticks, float), axis=0) * 2 * np.pi / ticks_per_revolution
+    poses = [np.zeros(3)]
+    for step in kinematics.forward(dphi, k):
+        poses.append(se2.compose(poses[-1], step))
+    return np.array(poses)
+
+
+def _ticks_at(ticks, lag):
+    """Cumulative ticks read ``lag`` cycles later (fractional: linear interpolation)."""
+    cycles = np.arange(len(ticks), dtype=float)
+    return np.column_stack([np.interp(cycles + lag, cycles, ticks[:, c]) for c in range(2)])
+
+
+def dead_reckoning_errors(ticks, truth, k, mount, ticks_per_revolution, window=100, stride=20,
+                          lag=0.0):
+    """Final error of dead reckoning over windows of ``window`` encoder cycles, started every
+    ``stride`` cycles: translation (m) and |heading| (rad), each (windows,).
+
+    Each window starts from the motion-capture pose, aligned through the marker mount m:
+    the body is at p₀ ⊕ m⁻¹, wheel odometry with k carries it along, and its marker, x ⊕ m,
+    is compared with the mocap pose at the window's end. The mount matters: a marker off the
+    axle moves sideways in every turn, and a mount yaw turns every straight line. ``lag``
+    pairs the mocap sample of cycle c with the ticks counted up to cycle c + lag (a lag > 0
+    is an encoder clock ahead, the sign of the time_offset effect).
+    """
+    truth = np.asarray(truth, float)
+    odometry = dead_reckoning(_ticks_at(np.asarray(ticks, float), lag), k, ticks_per_revolution)
+    margin = int(np.ceil(abs(lag)))  # cycles the shifted ticks do not cover
+    starts = np.arange(margin, len(truth) - window - margin, stride)
+    ends = starts + window
+    # The wheels' motion over a window, start to end, in the body frame at its start.
+    motion = se2.between(odometry[ends], odometry[starts])
+    body = se2.compose(truth[starts], se2.inverse(mount))
+    predicted = se2.compose(se2.compose(body, motion), mount)
+    error = predicted - truth[ends]
+    return np.hypot(error[:, 0], error[:, 1]), np.abs(se2.wrap_angle(error[:, 2]))

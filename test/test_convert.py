@@ -7,7 +7,7 @@ import pytest
 
 from sclam_ros import bag, cli, kinematics, se2
 from sclam_ros.convert import (OPTIODOM_TICKS_PER_REV, URG_BEAMS, ConvertError,
-                               convert_breezyslam, convert_optiodom, read_optiodom, repair_ticks)
+                               convert_breezyslam, convert_optiodom, read_optiodom)
 from sclam_ros.params import SclamParams
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -60,30 +60,20 @@ def test_breezyslam_bag_scans_ticks_params_attribution(tmp_path):
     assert (out / "SOURCE_LICENSE.md").is_file()
 
 
-def test_repair_ticks_pairs_each_scan_with_a_neighbouring_lines_ticks():
-    stamps = np.arange(5.0)
-    ticks = np.column_stack([np.arange(5) * 10, np.arange(5) * 100])
-    ranges = np.arange(5.0)[:, None] * np.ones((1, 3))
-    s, t, r = repair_ticks(stamps, ticks, ranges, -1)
-    assert list(s) == [1, 2, 3, 4] and list(r[:, 0]) == [1, 2, 3, 4]
-    assert list(t[:, 0]) == [0, 10, 20, 30]  # line i's scan, line i−1's ticks
-    s, t, _ = repair_ticks(stamps, ticks, ranges, 1)
-    assert list(s) == [0, 1, 2, 3] and list(t[:, 1]) == [100, 200, 300, 400]
-    assert all(np.array_equal(x, y) for x, y in zip(repair_ticks(stamps, ticks, ranges, 0),
-                                                   (stamps, ticks, ranges)))
-
-
 @needs
-def test_breezyslam_tick_shift_takes_the_previous_lines_ticks(tmp_path):
+def test_breezyslam_scan_delay_stamps_scans_earlier_and_leaves_the_ticks(tmp_path):
     raw = np.loadtxt(MINES)
-    convert_breezyslam(MINES, tmp_path / "m1", tick_shift=-1)
-    joints = _read(tmp_path / "m1" / "bag", "/joint_states")
-    assert len(joints) == len(raw) - 1
-    positions = np.array([m.position for _, m in joints])
-    assert np.array_equal(positions, raw[:-1, [2, 3]])
-    stamps = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for _, m in joints])
-    assert np.allclose(stamps, raw[1:, 0] * 1e-6, atol=1e-6)
-    assert "ticks of line i-1" in (tmp_path / "m1" / "ATTRIBUTION.md").read_text()
+    convert_breezyslam(MINES, tmp_path / "late", scan_delay=0.15)
+    stamp = lambda m: m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+    scans = _read(tmp_path / "late" / "bag", "/scan")
+    joints = _read(tmp_path / "late" / "bag", "/joint_states")
+    assert len(scans) == len(joints) == len(raw)
+    # The scan is stamped when it was taken, and recorded when its log line was written.
+    assert np.allclose([stamp(m) for _, m in scans], raw[:, 0] * 1e-6 - 0.15, atol=1e-6)
+    assert np.allclose([t for t, _ in scans], raw[:, 0] * 1e-6, atol=1e-6)
+    assert np.allclose([stamp(m) for _, m in joints], raw[:, 0] * 1e-6, atol=1e-6)
+    assert np.array_equal([m.position for _, m in joints], raw[:, [2, 3]])
+    assert "150 ms before" in (tmp_path / "late" / "ATTRIBUTION.md").read_text()
 
 
 def _dead_reckoning(ticks, params):
