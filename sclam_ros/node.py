@@ -2,7 +2,8 @@
 
 The node is a thin shell around :class:`sclam_ros.window.OnlineCalibrator`: it declares the
 parameters of :class:`sclam_ros.params.SclamParams`, converts messages, and publishes what the
-calibrator knows.
+calibrator knows. Window solves run on a thread of their own (solver_thread.py): the
+subscription callbacks only integrate ~/odom and append keyframes, so they never wait for one.
 
 Subscribes
   ``joint_states_topic`` (sensor_msgs/JointState, reliable) and ``scan_topic``
