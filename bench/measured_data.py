@@ -9,7 +9,7 @@ the README, and writes the figures to docs/figures/ (or --out).
 breezyslam-mines exp1/exp2: converted as logged and with each scan stamped 50–200 ms
 before its log line (convert_breezyslam(scan_delay=...): the ticks keep their stamps and
 are interpolated at the scan's); per variant the calibration (± σ) and `sclam diagnose`
-(library effects, 5-fold time-block held-out NLL). Cross-run: base and extended models
+(default candidate effects, 5-fold time-block held-out NLL). Cross-run: base and extended models
 fitted on one run, scored on the other (sclam_ros.cross_run, the metric of
 `sclam diagnose --predict`), as logged and with the delay chosen on the fitted run.
 optiodom-diff: per run, the mocap calibration (sclam_ros.mocap) with and without the
@@ -37,7 +37,6 @@ from sclam_ros.solver import marginal_covariance, solve_with_variance_components
 
 ROOT = Path(__file__).resolve().parents[1]
 WHEELS = CALIBRATION_KEYS[:3]
-MINES_EFFECTS = ["time_offset", "lateral_slip", "radius_drift"]
 # Scan stamps tried: each log line's scan taken this long before the line's stamp (s).
 SCAN_DELAYS = (0.0, 0.05, 0.10, 0.15, 0.20)
 # The paper's two PowerBot runs (wheel base, m): the repeatability reference.
@@ -70,30 +69,33 @@ def _variant_name(delay):
     return "as logged" if delay == 0 else f"scans {delay * 1e3:.0f} ms earlier"
 
 
+def _time_offset(report):
+    return next(x for x in report["effects"] if x["name"] == "time_offset")
+
+
 def _mines_variant(src: Path, delay: float, work: Path) -> dict:
     out = work / f"{src.stem}_{delay * 1e3:.0f}ms"
     convert_breezyslam(src, out, scan_delay=delay)
     params = SclamParams.from_yaml(out / "params.yaml")
     keyframes = read_recording(out / "bag", params).keyframes
     calibration = calibrate_keyframes(keyframes, params)
-    diagnosis = diagnose_keyframes(keyframes, params, effect_names=MINES_EFFECTS)
-    return {"keyframes": keyframes, "params": params, "diagnosis": diagnosis,
+    diagnosis = diagnose_keyframes(keyframes, params)  # the library's default candidates
+    # The clock offset alone, for the trace: among the defaults scan_distortion's sweep
+    # delay is the same window shift, and whichever is selected leaves the other undefined.
+    offset = _time_offset(diagnose_keyframes(keyframes, params, ["time_offset"]).report)
+    return {"keyframes": keyframes, "params": params, "diagnosis": diagnosis, "offset": offset,
             "k": np.array([calibration.estimate[k] for k in WHEELS]),
             "sigma": np.array([calibration.sigma[k] for k in WHEELS])}
 
 
-def _time_offset(report):
-    return next(x for x in report["effects"] if x["name"] == "time_offset")
-
-
 def _print_mines_table(variants):
     print("| run, scan stamps | base r_l, r_r, b [mm] | b σ [mm] | base held-out NLL | selected "
-          "| time_offset [ms] | extended r_l, r_r, b [mm] | extended NLL | unexplained |")
+          "| time_offset alone [ms] | extended r_l, r_r, b [mm] | extended NLL | unexplained |")
     print("|---|---|---|---|---|---|---|---|---|")
     for (run, delay), v in variants.items():
         rep = v["diagnosis"].report
         b, e = rep["base"], rep["extended"]
-        off = _time_offset(rep)
+        off = v["offset"]
         u = "; ".join(f"{x['component']}~{x['regressor']} {x['strength']:.2f}"
                       for x in rep["unexplained"][:3])
         print(f"| {run} {_variant_name(delay)} | {_mm(b['params'][k] for k in WHEELS)} | "
@@ -109,7 +111,7 @@ def _refined_delay(variants, run):
     model, corrected by the clock offset diagnose still fits there (to 5 ms)."""
     best = min((d for r, d in variants if r == run),
                key=lambda d: variants[run, d]["diagnosis"].report["base"]["error"])
-    residual = _time_offset(variants[run, best]["diagnosis"].report)["value"]
+    residual = variants[run, best]["offset"]["value"]
     return round(round((best - residual) / 0.005) * 0.005, 3)
 
 
@@ -127,7 +129,7 @@ def _print_mines_cross_run(variants, runs, chosen):
             r = cross_run.cross_run_errors(fit["keyframes"], fit["params"], other["keyframes"],
                                            other["params"], effects)
             own = other["diagnosis"].report
-            values = ", ".join(f"{e['name']} {e['value']:.3g} {e['evidence']['units']}"
+            values = ", ".join(f"{e['name']} {e['value']:.3g} {e['evidence']['units'].split()[0]}"
                                for e in report["effects"] if e["selected"])
             print(f"| {_variant_name(delay)} | {a} → {b} | {values or 'none'} | "
                   f"{r['base']:.3f} | {r['extended']:.3f} | {r['gain']:+.3f} ± {r['gain_stderr']:.3f} | "
@@ -148,19 +150,20 @@ def _mines_trace_figure(variants, runs, path):
     for run in runs:
         delays = sorted(d for r, d in variants if r == run)
         reports = [variants[run, d]["diagnosis"].report for d in delays]
+        offsets = [variants[run, d]["offset"] for d in delays]
         ms = np.array(delays) * 1e3
         line, = nll_ax.plot(ms, [r["base"]["error"] for r in reports], "o-", label=f"{run} base")
         nll_ax.plot(ms, [r["extended"]["error"] for r in reports], "s--", color=line.get_color(),
                     label=f"{run} extended")
-        off_ax.errorbar(ms, [_time_offset(r)["value"] * 1e3 for r in reports],
-                        [_time_offset(r)["sigma"] * 1e3 for r in reports], fmt="o-", capsize=3,
+        off_ax.errorbar(ms, [o["value"] * 1e3 for o in offsets],
+                        [o["sigma"] * 1e3 for o in offsets], fmt="o-", capsize=3,
                         label=run)
     nll_ax.set_xlabel("scans stamped earlier than their log line [ms]")
     nll_ax.set_ylabel("held-out NLL [nats/edge], lower is better")
     nll_ax.legend(fontsize=7)
     off_ax.axhline(0, color="0.6", lw=0.8)
     off_ax.set_xlabel("scans stamped earlier than their log line [ms]")
-    off_ax.set_ylabel("time_offset fitted by diagnose [ms]")
+    off_ax.set_ylabel("time_offset fitted alone [ms]")
     off_ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -170,7 +173,7 @@ def _mines_trace_figure(variants, runs, path):
 
 def _mines_residual_figure(variants, runs, chosen, path):
     """Per run: the strongest residual dependence as logged, before (base) and after the
-    selected time_offset, and with the scans re-stamped (base model). Whitened residuals;
+    selected effects, and with the scans re-stamped (base model). Whitened residuals;
     the axes show the central 98 % (failed scan matches reach ±300σ)."""
     plt = _plt()
     fig, axes = plt.subplots(1, len(runs), figsize=(5.2 * len(runs), 3.8), squeeze=False)
@@ -180,7 +183,8 @@ def _mines_residual_figure(variants, runs, chosen, path):
         comp, reg, strength = _strongest(logged)
         shown = []
         for diag, residuals, label in ((logged, logged.residuals_before, "as logged, base"),
-                                       (logged, logged.residuals_after, "as logged + time_offset"),
+                                       (logged, logged.residuals_after,
+                                        "as logged + " + ", ".join(cross_run.selected_effects(logged.report))),
                                        (fixed, fixed.residuals_before,
                                         f"{_variant_name(delay)}, base")):
             ax.plot(diag.regressors[reg][diag.edge_of[comp]], residuals[comp], ".", ms=3,
