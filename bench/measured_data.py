@@ -13,9 +13,9 @@ are interpolated at the scan's); per variant the calibration (± σ) and `sclam 
 fitted on one run, scored on the other (sclam_ros.cross_run, the metric of
 `sclam diagnose --predict`), as logged and with the delay chosen on the fitted run.
 optiodom-diff: per run, the mocap calibration (sclam_ros.mocap) with and without the
-library's time_offset in the graph; open-loop cross-run check: dead reckoning over 5 s
-windows of every run with nominal k, the run's own k, another run's k and the mean k of
-the other runs, against motion capture; the tick/mocap lag that minimises the open-loop
+library's time_offset in the graph; open-loop check: dead reckoning over 5 s windows of
+every run with nominal k, the run's own k, k of the run's other half (2-fold time blocks),
+another run's k and the mean k of the other runs, against motion capture; the tick/mocap lag that minimises the open-loop
 heading error, against time_offset.
 Repeatability of r_l, r_r, b between runs for both, against the paper's two PowerBot runs.
 """
@@ -263,6 +263,22 @@ def _open_loop(run, k, params, lag=0.0, mount=None):
     return np.sqrt(np.mean(trans ** 2)) * 1e3, np.degrees(np.sqrt(np.mean(heading ** 2)))
 
 
+def _halves(run):
+    middle = len(run[0]) // 2
+    return tuple(a[:middle] for a in run), tuple(a[middle:] for a in run)
+
+
+def _two_fold(run, params):
+    """Time-block cross-validation within the run: k fitted on one half, dead reckoning
+    scored on the other, both ways (RMS of the two halves' RMS)."""
+    errors = []
+    for train, test in (_halves(run), _halves(run)[::-1]):
+        stamps, truth, ticks = train
+        k = mocap.calibrate_with_ground_truth(stamps, ticks, truth, params).estimate[:3]
+        errors.append(_open_loop(test, k, params))
+    return tuple(np.sqrt(np.mean(np.square(errors), axis=0)))
+
+
 def _optiodom_calibrations(loaded, params):
     print("| run | r_l, r_r, b ± σ [mm] | marker x, y [mm], yaw [deg] | time_offset [ms] | "
           "r_l, r_r, b with time_offset [mm] |")
@@ -284,10 +300,10 @@ def _optiodom_open_loop(loaded, fits, params):
     print(f"\nOpen loop: dead reckoning over {WINDOW_CYCLES * 0.05:.0f} s windows (one every "
           f"{STRIDE_CYCLES * 0.05:.0f} s), started at the mocap pose; RMS of the end error, "
           "translation [mm] / heading [deg]:\n")
-    print("| run | nominal k | same run's k | other runs of the same shape: median "
-          "| runs of the other shape: median | any other run: heading best – worst (worst k) "
-          "| mean k of the 11 others |")
-    print("|---|---|---|---|---|---|---|")
+    print("| run | nominal k | same run's k | same run, other half's k | other runs of the same "
+          "shape: median | runs of the other shape: median | any other run: heading best – worst "
+          "(worst k) | mean k of the 11 others |")
+    print("|---|---|---|---|---|---|---|---|")
     nominal = np.array([params.wheel_radius_left, params.wheel_radius_right, params.wheel_base])
     table = {}
     for b, run in loaded.items():
@@ -296,19 +312,22 @@ def _optiodom_open_loop(loaded, fits, params):
         same_shape = np.array([a[:4] == b[:4] for a in others])
         row = {"nominal": _open_loop(run, nominal, params),
                "same run": _open_loop(run, fits[b]["k"], params),
+               "other half": _two_fold(run, params),
                "same shape (median)": tuple(np.median(cross[same_shape], 0)),
                "other shape (median)": tuple(np.median(cross[~same_shape], 0)),
                "mean of the others": _open_loop(run, np.mean([fits[a]["k"] for a in others], 0), params),
                "worst other": others[int(np.argmax(cross[:, 1]))], "cross": cross}
         table[b] = row
         f = lambda v: f"{v[0]:.1f} / {v[1]:.2f}"
-        print(f"| {b} | {f(row['nominal'])} | {f(row['same run'])} | {f(row['same shape (median)'])} | "
+        print(f"| {b} | {f(row['nominal'])} | {f(row['same run'])} | {f(row['other half'])} | "
+              f"{f(row['same shape (median)'])} | "
               f"{f(row['other shape (median)'])} | {cross[:, 1].min():.2f} – {cross[:, 1].max():.2f}° "
               f"({row['worst other']}) | {f(row['mean of the others'])} |")
-    keys = ("nominal", "same run", "same shape (median)", "other shape (median)", "mean of the others")
+    keys = ("nominal", "same run", "other half", "same shape (median)", "other shape (median)",
+            "mean of the others")
     med = {key: np.median([row[key] for row in table.values()], 0) for key in keys}
     cells = [f"{med[k][0]:.1f} / {med[k][1]:.2f}" for k in keys]
-    print("| median over runs | " + " | ".join(cells[:4] + ["–"] + cells[4:]) + " |")
+    print("| median over runs | " + " | ".join(cells[:5] + ["–"] + cells[5:]) + " |")
     return table
 
 
@@ -331,7 +350,8 @@ def _optiodom_lags(loaded, fits, params):
 def _optiodom_figure(table, path):
     plt = _plt()
     names = list(table)
-    keys = ("nominal", "same run", "same shape (median)", "other shape (median)", "mean of the others")
+    keys = ("nominal", "same run", "other half", "same shape (median)", "other shape (median)",
+            "mean of the others")
     width = 0.8 / len(keys)
     offsets = (np.arange(len(keys)) - (len(keys) - 1) / 2) * width
     fig, axes = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
