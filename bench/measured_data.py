@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from sclam_ros import cross_run, mocap
-from sclam_ros.convert import convert_breezyslam, optiodom_params, read_optiodom
+from sclam_ros.convert import (MINES_TICKS_PER_REV, convert_breezyslam, optiodom_params,
+                               read_breezyslam, read_optiodom)
 from sclam_ros.diagnose import diagnose_keyframes, write_diagnosis_report
 from sclam_ros.effects import LIBRARY, EffectData
 from sclam_ros.effects.model import extend_problem
@@ -201,12 +202,35 @@ def _mines_residual_figure(variants, runs, chosen, path):
     print(f"figure: {path}")
 
 
+def _per_line_speed_changes(stamps, ticks):
+    """|change| of the wheel speeds Δticks/Δstamp from one log line to the next (rad/s)."""
+    speeds = np.diff(ticks, axis=0) / np.diff(stamps)[:, None] * 2 * np.pi / MINES_TICKS_PER_REV
+    return np.abs(np.diff(speeds, axis=0))
+
+
+def _print_tick_stamp_check(runs_src):
+    """Do the ticks belong to their own line's stamp? Jittered line intervals make the
+    per-line wheel speed smooth only with the stamps the ticks were sampled at."""
+    print("Per-line wheel speed change [rad/s], median / 99th percentile: ticks with their own "
+          "line's stamp vs with the next line's (the scan re-pairing of an earlier version):")
+    for src in runs_src:
+        stamps, ticks, _ = read_breezyslam(src)
+        own = _per_line_speed_changes(stamps, ticks)
+        shifted = _per_line_speed_changes(stamps[1:], ticks[:-1])
+        dt = np.diff(stamps) * 1e3
+        print(f"  {src.stem}: {np.median(own):.1f} / {np.percentile(own, 99):.0f} vs "
+              f"{np.median(shifted):.1f} / {np.percentile(shifted, 99):.0f} "
+              f"(line intervals {dt.min():.0f}–{dt.max():.0f} ms)")
+    print()
+
+
 def mines(data: Path, figures: Path):
     runs_src = [data / "breezyslam-mines" / f"exp{n}.dat" for n in (1, 2)]
     if not all(p.exists() for p in runs_src):
         print(f"skipping breezyslam-mines: not found under {data}")
         return None
     print("\n## breezyslam-mines\n")
+    _print_tick_stamp_check(runs_src)
     work = Path(tempfile.mkdtemp(prefix="mines_"))
     variants = {(src.stem, delay): _mines_variant(src, delay, work)
                 for src in runs_src for delay in SCAN_DELAYS}
