@@ -4,8 +4,9 @@ A window solve takes tens of milliseconds (LM over ~100 poses in numpy). Run in 
 subscription callback it holds up every message queued behind it: at 40 Hz scans and
 100 Hz encoders, ~/odom and the next keyframes waited for it (measured before this
 module: encoder → odom p99 32 ms, bench/node_latency.py). Here the callbacks only append
-keyframes and ask for a solve; this thread prepares the window problem under the shared
-lock (cheap), solves it with the lock released, and applies the result under the lock.
+keyframes and ask for a solve; this thread marginalises the keyframes that left the pose
+window and solves the window with the shared lock released, taking it only to read and
+write the calibrator's state (prepare_solve, apply_solve, take_chunks_due, add_chunks).
 Requests that arrive while a solve runs are merged into the next one: the solver always
 works on the newest window and never builds a backlog.
 
@@ -54,18 +55,39 @@ class SolverThread:
                 return
             try:
                 estimate = self._solve_once()
+                if estimate is not None:
+                    self.on_estimate(estimate)
+                # After the solve, not before: the estimate someone waits for comes first.
+                # The keyframes that left the pose window then join the prior, and a solve
+                # follows at once so that no estimate lacks them for long (at the end of a
+                # bag, the last estimate would otherwise be short of the last chunk).
+                if self._marginalise_due():
+                    self._wake.set()
             except Exception as exc:  # noqa: BLE001 - one bad solve must not end the thread
                 self.on_error(exc)
-                continue
-            if estimate is not None:
-                self.on_estimate(estimate)
 
     def _solve_once(self) -> Optional[Estimate]:
         with self.lock:
             job = self.calibrator.prepare_solve()
-        if job is None:
-            return None
-        self.solves_started += 1
-        outcome = run_solve(job)
+        estimate = None
+        if job is not None:
+            self.solves_started += 1
+            outcome = run_solve(job)
+            with self.lock:
+                estimate = self.calibrator.apply_solve(outcome)
+        return estimate
+
+    def _marginalise_due(self) -> bool:
+        """Marginalise the chunks that are due; True if there were any."""
+        calibrator = self.calibrator
         with self.lock:
-            return self.calibrator.apply_solve(outcome)
+            generation, calibration = calibrator.generation, calibrator.calibration.copy()
+            due = calibrator.take_chunks_due()
+        if not due:
+            return False
+        # Dense algebra on keyframes no one else touches any more: outside the lock.
+        chunks = [(calibrator.marginalise(keyframes, calibration), metres)
+                  for keyframes, metres in due]
+        with self.lock:
+            calibrator.add_chunks(generation, chunks)
+        return True
