@@ -7,7 +7,7 @@ import pytest
 
 from sclam_ros import bag, cli, kinematics, se2
 from sclam_ros.convert import (OPTIODOM_TICKS_PER_REV, URG_BEAMS, ConvertError,
-                               convert_breezyslam, convert_optiodom, read_optiodom)
+                               convert_optiodom, read_optiodom)
 from sclam_ros.params import SclamParams
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -63,7 +63,8 @@ def test_breezyslam_bag_scans_ticks_params_attribution(tmp_path):
 @needs
 def test_breezyslam_scan_delay_stamps_scans_earlier_and_leaves_the_ticks(tmp_path):
     raw = np.loadtxt(MINES)
-    convert_breezyslam(MINES, tmp_path / "late", scan_delay=0.15)
+    assert cli.main(["convert", "breezyslam", str(MINES), str(tmp_path / "late"),
+                     "--scan-delay", "0.15"]) == 0
     stamp = lambda m: m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
     scans = _read(tmp_path / "late" / "bag", "/scan")
     joints = _read(tmp_path / "late" / "bag", "/joint_states")

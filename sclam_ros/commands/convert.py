@@ -23,6 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("out", help="output folder (OUT/bag must not exist)")
     parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3",
                         help="rosbag2 storage (default: %(default)s)")
+    parser.add_argument("--scan-delay", type=float, default=0.0, metavar="S",
+                        help="breezyslam only: each scan was taken S seconds before its log line "
+                             "(the Mines logs: 0.16, found by sclam diagnose; default 0)")
 
 
 def run(args) -> int:
@@ -30,7 +33,11 @@ def run(args) -> int:
     from sclam_ros.convert import CONVERTERS, ConvertError
 
     try:
-        summary = CONVERTERS[args.format](args.src, args.out, args.storage)
+        if args.scan_delay and args.format != "breezyslam":
+            print("sclam convert: --scan-delay applies to breezyslam logs only", file=sys.stderr)
+            return 2
+        options = {"scan_delay": args.scan_delay} if args.format == "breezyslam" else {}
+        summary = CONVERTERS[args.format](args.src, args.out, args.storage, **options)
     except (ConvertError, BagError) as exc:
         print(f"sclam convert: {exc}", file=sys.stderr)
         return 1

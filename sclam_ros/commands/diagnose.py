@@ -26,8 +26,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
     parser.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
     parser.add_argument("--report", metavar="DIR", help="write residual figures (PNG) here")
+    from sclam_ros.diagnose import DEFAULT_CANDIDATES
+
     parser.add_argument("--effects", metavar="NAME[,NAME...]",
-                        help="effects to try (default: time_offset,lateral_slip,radius_drift,floor_noise)")
+                        help=f"effects to try (default: {','.join(DEFAULT_CANDIDATES)})")
     parser.add_argument("--folds", type=int, default=5, help="time blocks of the cross-validation")
     parser.add_argument("--predict", metavar="OTHER_BAG",
                         help="another recording of the same robot: fit on BAG, report the error on it")
