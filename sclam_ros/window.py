@@ -46,11 +46,14 @@ MARGINALISE_BATCH = 20
 # Fewer keyframes than this in the window: no solve (too little to say anything).
 MIN_WINDOW_KEYFRAMES = 6
 # Metres of the radii window kept as poses in the solved graph (the rest is marginalised).
-# 20 m is ~90 keyframes at 0.45 m/s: a solve of ~15-30 ms.
+# It is also what the change test compares with the older data, so it sets how soon a
+# change shows: 10 m (≈ 45 keyframes at 0.45 m/s) detected a 1 % load change after ≈ 25 s
+# of driving where 20 m took ≈ 60-100 s (bench/load_change.py), and halves the solve.
 POSE_WINDOW_DISTANCE = 10.0
 # A radius change is declared when the radii's χ² move (2 dof) exceeds this on this many
-# solves in a row: p = 1e-4 per solve under no change, and solves are 1 s apart, so a
-# false alarm is rare, and costs only the precision of the dropped history.
+# solves in a row: p = 0.01 per solve under no change, and neighbouring solves share most
+# of their data, so a false alarm is rare; it costs only the precision of the dropped
+# history (b and l keep theirs).
 CHANGE_CHI2 = 9.21
 CHANGE_CONFIRMATIONS = 3
 # The test needs a reference: marginalised data of at least this many metres. Early chunks
