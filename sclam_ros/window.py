@@ -146,7 +146,8 @@ class OnlineCalibrator:
 
     # --- user actions -------------------------------------------------------------------
     def reset_window(self) -> None:
-        """Forget the keyframes of the window (the radii restart from their current value)."""
+        """Forget the radii window: its keyframes and what marginalised data said about the
+        radii (they restart from their current value); what it said about (b, l) is kept."""
         self.window = deque()
         self._distance = deque()  # metres travelled by each keyframe's odometry edge
         self._leaving = []  # keyframes out of the window, not yet a full chunk
