@@ -8,8 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
-import math
-
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -218,21 +216,7 @@ def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
     )
     motion[to[plausible]] = from_laser[plausible]
     known[to] = True
-    return chain(np.where(known[:, None], motion, 0.0))
-
-
-def chain(motion) -> np.ndarray:
-    """Poses from the origin along relative motions: pose_i = pose_{i−1} ⊕ motion_i
-    (motion_0 is ignored). A scalar loop: sequential by nature, and numpy's per-call
-    overhead on 3-vectors made it a tenth of an online window solve."""
-    poses = np.zeros((len(motion), 3))
-    x = y = theta = 0.0
-    for i, (dx, dy, dtheta) in enumerate(motion.tolist()[1:], start=1):
-        c, s = math.cos(theta), math.sin(theta)
-        x, y = x + c * dx - s * dy, y + s * dx + c * dy
-        theta = math.atan2(math.sin(theta + dtheta), math.cos(theta + dtheta))
-        poses[i] = (x, y, theta)
-    return poses
+    return se2.chain(np.where(known[:, None], motion, 0.0))
 
 
 def gauge_anchors(inputs: GraphInputs) -> np.ndarray:

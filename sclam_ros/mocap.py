@@ -103,10 +103,7 @@ def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=
 def dead_reckoning(ticks, k, ticks_per_revolution) -> np.ndarray:
     """Body poses (n, 3) from the wheel ticks alone, starting at the origin at cycle 0."""
     dphi = np.diff(np.asarray(ticks, float), axis=0) * 2 * np.pi / ticks_per_revolution
-    poses = [np.zeros(3)]
-    for step in kinematics.forward(dphi, k):
-        poses.append(se2.compose(poses[-1], step))
-    return np.array(poses)
+    return se2.chain(np.vstack([np.zeros(3), kinematics.forward(dphi, k)]))
 
 
 def _ticks_at(ticks, lag):

@@ -13,10 +13,7 @@ def integrate_odometry(inputs: GraphInputs, k) -> np.ndarray:
     """Dead reckoning through the keyframes with wheel parameters k (gaps: stay put)."""
     motion = np.zeros((inputs.size, 3))
     motion[inputs.odo_from + 1] = kinematics.forward(inputs.odo_dphi, k)
-    poses = np.zeros((inputs.size, 3))
-    for i in range(1, inputs.size):
-        poses[i] = se2.compose(poses[i - 1], motion[i])
-    return poses
+    return se2.chain(motion)
 
 
 def _ground_truth_at(bag_path, stamps):

@@ -31,7 +31,6 @@ class SolverThread:
         self.on_estimate = on_estimate
         self.on_error = on_error
         self.requests = 0
-        self.solves_started = 0
         self._wake = threading.Event()
         self._stopping = False
         self._thread = threading.Thread(target=self._run, name="sclam_window_solver", daemon=True)
@@ -69,13 +68,11 @@ class SolverThread:
     def _solve_once(self) -> Optional[Estimate]:
         with self.lock:
             job = self.calibrator.prepare_solve()
-        estimate = None
-        if job is not None:
-            self.solves_started += 1
-            outcome = run_solve(job)
-            with self.lock:
-                estimate = self.calibrator.apply_solve(outcome)
-        return estimate
+        if job is None:
+            return None
+        outcome = run_solve(job)
+        with self.lock:
+            return self.calibrator.apply_solve(outcome)
 
     def _marginalise_due(self) -> bool:
         """Marginalise the chunks that are due; True if there were any."""
@@ -86,8 +83,7 @@ class SolverThread:
         if not due:
             return False
         # Dense algebra on keyframes no one else touches any more: outside the lock.
-        chunks = [(calibrator.marginalise(keyframes, calibration), metres)
-                  for keyframes, metres in due]
+        chunks = calibrator.marginalise_chunks(due, calibration)
         with self.lock:
             calibrator.add_chunks(generation, chunks)
         return True

@@ -251,9 +251,12 @@ class OnlineCalibrator:
     # Marginalising a chunk costs a few ms of dense algebra; the node does it on its solver
     # thread, outside its lock (take_chunks_due / marginalise / add_chunks), not in a callback.
     def marginalise_due(self) -> None:
-        self.add_chunks(self.generation, [
-            (self.marginalise(keyframes, self.calibration), metres)
-            for keyframes, metres in self.take_chunks_due()])
+        self.add_chunks(self.generation,
+                        self.marginalise_chunks(self.take_chunks_due(), self.calibration))
+
+    def marginalise_chunks(self, due, calibration) -> list:
+        """(Gaussian or None, metres) of each (keyframes, metres) taken from the due list."""
+        return [(self.marginalise(keyframes, calibration), metres) for keyframes, metres in due]
 
     def take_chunks_due(self) -> list:
         due, self._chunks_due = self._chunks_due, []
@@ -349,7 +352,6 @@ class OnlineCalibrator:
     # run_solve touches nothing but its job.
     def prepare_solve(self) -> Optional["SolveJob"]:
         self._since_solve = 0
-        self.solve_pending = False
         window = list(self.window)
         if len(window) < MIN_WINDOW_KEYFRAMES:  # a reset came after the request
             return None
@@ -359,7 +361,7 @@ class OnlineCalibrator:
         prior = self.prior() + gaussian_of_prior(self.nominal, graph_mod.prior_sigmas(self.nominal))
         return SolveJob(self.generation, [kf.index for kf in window], float(inputs.stamps[-1]),
                         problem, len(window), self.window_length(), prior,
-                        has_history=sum(c.metres for c in self.history) >= MIN_TESTED_HISTORY)
+                        change_testable=sum(c.metres for c in self.history) >= MIN_TESTED_HISTORY)
 
     def apply_solve(self, outcome: Optional["SolveOutcome"]) -> Optional[Estimate]:
         if outcome is None:
@@ -401,7 +403,7 @@ class OnlineCalibrator:
         self.frontend.calibration = calibration
 
     def _test_for_radius_change(self, job, mean, cov) -> None:
-        if not job.has_history:
+        if not job.change_testable:
             self.change_statistic = float("nan")
             return
         self.change_statistic = radius_change_statistic(job.prior, mean, cov)
@@ -422,7 +424,7 @@ class SolveJob:
     keyframes_in_window: int
     window_distance: float
     prior: Gaussian  # every prior of the problem, for the change test
-    has_history: bool  # enough marginalised radii information to test against
+    change_testable: bool  # enough marginalised radii information to test against
 
 
 @dataclass

@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +35,7 @@ from sensor_msgs.msg import JointState, LaserScan  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
+import polling  # noqa: E402
 from sclam_ros.bag import iter_messages, topic_info  # noqa: E402
 from sclam_ros.commands.play import rclpy_class, rosbags_to_rclpy  # noqa: E402
 from sclam_ros.node import OdometryIntegrator, SclamNode  # noqa: E402
@@ -50,11 +50,7 @@ DURATION = 60.0
 
 
 def wait_for(condition, timeout=TIMEOUT, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.0005)  # polling interval of the condition, not a synchronisation
+    polling.wait_for(condition, timeout, what, interval=0.0005)
 
 
 # --- fixtures ---------------------------------------------------------------------------

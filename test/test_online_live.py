@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
+import polling  # noqa: E402
 from sclam_ros.bag import topic_info  # noqa: E402
 from sclam_ros.cli import main  # noqa: E402
 from sclam_ros.params import ODOMETRY_KEYS  # noqa: E402
@@ -37,11 +37,7 @@ TIMEOUT = 120.0
 
 
 def wait_for(condition, timeout=TIMEOUT, what="condition"):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.01)  # polling interval of the condition, not a synchronisation
+    polling.wait_for(condition, timeout, what, interval=0.01)
 
 
 def test_live_node_ends_where_the_offline_track_ends(tmp_path):

@@ -56,3 +56,13 @@ def test_stacked_jacobians_match_single():
     for i in range(5):
         _, ja1, jb1 = se2.between_with_jacobians(a[i], b[i])
         assert np.allclose(ja[i], ja1) and np.allclose(jb[i], jb1)
+
+
+def test_chain_equals_composing_one_motion_after_another():
+    rng = np.random.default_rng(7)
+    motion = rng.normal(0, [0.3, 0.1, 1.5], (50, 3))
+    pose, expected = np.zeros(3), [np.zeros(3)]
+    for m in motion[1:]:
+        pose = se2.compose(pose, m)
+        expected.append(pose)
+    assert np.allclose(se2.chain(motion), expected, atol=1e-12)
