@@ -8,6 +8,12 @@ Every scan that the encoders cover becomes a keyframe. Its edges to the previous
 
 The scan matcher is seeded with the wheel-odometry prediction under the current
 calibration, mapped into the laser frame: z_guess = l⁻¹ ∘ K ∘ l.
+
+A scan is registered as soon as it arrives, not when the encoders reach its stamp: a scan
+that waits for the next encoder sample (up to a whole encoder period, 10 ms at 100 Hz,
+33 ms for a 30 Hz TurtleBot) would otherwise wait before its registration, too. Its seed
+then uses the wheel angles extrapolated from the last two samples (a few ms at constant
+speed: far inside the matcher's basin); its odometry edge waits for the real samples.
 """
 from __future__ import annotations
 
@@ -23,6 +29,7 @@ from .scan_matching import (
     ScanMatcherConfig,
     laser_motion_from_base_motion,
     scan_to_points,
+    thinned,
 )
 from .sync import EncoderStream, ScanSynchronizer, increment_between
 
@@ -39,6 +46,22 @@ class Keyframe:
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to
     laser_motion: Optional[np.ndarray] = None  # z: laser_j ⊖ laser_from, in that frame
     laser_information: Optional[np.ndarray] = None  # (3, 3)
+
+
+@dataclass
+class _Registration:
+    """What the matcher made of one scan (the matcher numbers the scans it is given)."""
+
+    scan: Scan
+    number: int
+    match_from: Optional[int] = None  # number of the scan the motion is relative to
+    laser_motion: Optional[np.ndarray] = None
+    laser_information: Optional[np.ndarray] = None
+
+
+# Registrations remembered to resolve a match's reference scan to its keyframe; a match
+# refers to the last scan the matcher placed, at most a few empty scans back.
+REMEMBERED_REGISTRATIONS = 256
 
 
 class Frontend:
@@ -60,50 +83,87 @@ class Frontend:
         )
         self._previous = None  # last SyncedScan
         self._count = 0
+        self.registered = 0  # scans given to the matcher (its scan numbers)
+        self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
+        self._early = None  # _Registration of a scan still waiting for the encoders
+        self._keyframe_of = {}  # registration number -> keyframe index
         # The last scan the matcher accepted, prepared for point-to-line refinement.
         self._reference = None
-        self._reference_index = None
+        self._reference_number = None
 
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list:
         return [self._keyframe(s) for s in self.sync.add_encoder(stamp, left_raw, right_raw)]
 
     def add_scan(self, scan: Scan) -> list:
-        return [self._keyframe(s) for s in self.sync.add_scan(scan)]
+        keyframes = [self._keyframe(s) for s in self.sync.add_scan(scan)]
+        pending = self.sync.pending
+        if len(pending) == 1 and pending[0] is scan:
+            # Only this scan waits: register it now. (Behind another waiting scan it keeps
+            # its turn: the matcher must see scans in order.)
+            predicted = self.stream.predict(scan.stamp)
+            if predicted is not None:
+                self._early = self._register(scan, predicted)
+        return keyframes
 
     def flush(self) -> list:
         return [self._keyframe(s) for s in self.sync.flush()]
+
+    def _register(self, scan: Scan, angles) -> _Registration:
+        """Run the matcher (and the point-to-line refinement) on `scan` taken at wheel
+        `angles`; the seed is the wheel motion since the previously registered scan."""
+        guess = None
+        last, self._registered_angles = self._registered_angles, angles
+        if last is not None and last.segment == angles.segment and angles.stamp > last.stamp:
+            base_motion = kinematics.forward(angles.angles - last.angles, self.calibration[:3])
+            guess = laser_motion_from_base_motion(base_motion, self.calibration[3:])
+        registration = _Registration(scan, self.registered)
+        self.registered += 1
+        scan = thinned(scan, self.params.scan_max_beams)
+        match = self.matcher.add_scan(scan, guess)
+        points = None
+        if match is not None:
+            z = np.asarray(match.z, float)
+            points = scan_to_points(scan, self.matcher.config.min_range,
+                                    self.matcher.config.max_range)
+            if self._reference_number == match.index_from:
+                z, _ = point_to_line.refine(self._reference, points, z)
+            registration.match_from = int(match.index_from)
+            registration.laser_motion = z
+            registration.laser_information = np.asarray(match.information, float)
+        if match is not None or self._reference_number is None:
+            if points is None:
+                points = scan_to_points(scan, self.matcher.config.min_range,
+                                        self.matcher.config.max_range)
+            self._reference = point_to_line.ReferenceScan.from_points(points)
+            self._reference_number = registration.number
+        return registration
 
     def _keyframe(self, synced) -> Keyframe:
         index = self._count
         self._count += 1
         kf = Keyframe(index, synced.scan.stamp, np.array(synced.wheels.angles, float))
-        guess = None
         if self._previous is not None:
             increment, reason = increment_between(self._previous, synced, self.stream)
             if increment is not None:
                 kf.dphi = np.asarray(increment.dphi, float)
-                base_motion = kinematics.forward(kf.dphi, self.calibration[:3])
-                guess = laser_motion_from_base_motion(base_motion, self.calibration[3:])
             else:
                 self.rejections.add(reason)
-        # The matcher is called once per keyframe, so its scan indices are keyframe indices.
-        match = self.matcher.add_scan(synced.scan, guess)
-        points = None
-        if match is not None:
-            z = np.asarray(match.z, float)
-            points = scan_to_points(synced.scan, self.matcher.config.min_range,
-                                    self.matcher.config.max_range)
-            reference = self._reference if self._reference_index == match.index_from else None
-            if reference is not None:
-                z, _ = point_to_line.refine(reference, points, z)
-            kf.laser_from = int(match.index_from)
-            kf.laser_motion = z
-            kf.laser_information = np.asarray(match.information, float)
-        if match is not None or self._reference_index is None:
-            if points is None:
-                points = scan_to_points(synced.scan, self.matcher.config.min_range,
-                                        self.matcher.config.max_range)
-            self._reference = point_to_line.ReferenceScan.from_points(points)
-            self._reference_index = index
+        early, self._early = self._early, None
+        # An early registration of a scan the synchroniser then dropped is simply unused.
+        if early is not None and early.scan is synced.scan:
+            registration = early
+        else:
+            registration = self._register(synced.scan, synced.wheels)
+        self._keyframe_of[registration.number] = index
+        if len(self._keyframe_of) > REMEMBERED_REGISTRATIONS:
+            del self._keyframe_of[next(iter(self._keyframe_of))]
+        if registration.laser_motion is not None:
+            source = self._keyframe_of.get(registration.match_from)
+            if source is None:  # the reference scan was registered, then dropped
+                self.rejections.add("laser_edge_from_dropped_scan")
+            else:
+                kf.laser_from = source
+                kf.laser_motion = registration.laser_motion
+                kf.laser_information = registration.laser_information
         self._previous = synced
         return kf

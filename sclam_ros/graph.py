@@ -225,6 +225,11 @@ def gauge_anchors(inputs: GraphInputs) -> np.ndarray:
     Relative edges fix nothing absolute, so each piece (separated by a stretch with no
     encoder and no scan match) needs one anchored pose.
     """
+    linked = np.zeros(max(inputs.size - 1, 0), bool)  # pose i joined to pose i + 1
+    linked[inputs.odo_from] = True
+    linked[inputs.laser_from[inputs.laser_to == inputs.laser_from + 1]] = True
+    if linked.all():  # one unbroken chain, the usual case: no graph search needed
+        return np.zeros(1, int)
     src = np.concatenate([inputs.odo_from, inputs.laser_from])
     dst = np.concatenate([inputs.odo_from + 1, inputs.laser_to])
     adjacency = coo_matrix((np.ones(len(src)), (src, dst)), shape=(inputs.size, inputs.size))

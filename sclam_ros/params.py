@@ -124,6 +124,14 @@ class SclamParams:
     scan_voxel_size: float = _param(
         0.05, "KISS-ICP voxel size for planar indoor scans", _positive, "m"
     )
+    scan_max_beams: float = _param(
+        720,
+        "scans with more beams are thinned to every k-th beam (the smallest k leaving at "
+        "most this many) before scan matching: registration time grows with the beams, the "
+        "precision of a 0.5 s edge hardly does; 0 = match all beams",
+        _non_negative,
+        "beams",
+    )
     # --- online estimation (sclam_node, sclam calibrate --track) --------------------
     window_distance: float = _param(
         100.0,

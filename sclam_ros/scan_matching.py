@@ -28,6 +28,8 @@ the numbers that justify each default are quoted next to it in :class:`ScanMatch
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -51,6 +53,16 @@ def valid_beams(scan: Scan, min_range: float = 0.0, max_range: float = np.inf) -
         # NaN compares False everywhere, so it drops out with the comparisons; r > 0 drops the
         # "0 = no return" convention even when range_min is 0.
         return (r > 0.0) & (r >= lo) & (r <= hi) & np.isfinite(r)
+
+
+def thinned(scan: Scan, max_beams: float) -> Scan:
+    """Every k-th beam of `scan`, k the smallest that leaves at most `max_beams` (0: all)."""
+    n = len(scan.ranges)
+    if max_beams <= 0 or n <= max_beams:
+        return scan
+    k = math.ceil(n / max_beams)
+    return dataclasses.replace(scan, ranges=scan.ranges[::k], angle_increment=scan.angle_increment * k,
+                               time_increment=scan.time_increment * k)
 
 
 def scan_to_points(scan: Scan, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 import scipy.linalg
@@ -153,6 +154,7 @@ class SolverResult:
     final_cost: float
     history: list = field(default_factory=list)
     seconds: float = 0.0
+    system: Optional[System] = None  # the linear system at `values` (for covariances)
 
 
 class Problem:
@@ -246,12 +248,20 @@ class LinearSolver:
     """
 
     MAX_BANDWIDTH = 90  # scalar columns; 30 poses
+    # Up to this many columns, one dense Cholesky of the whole H: the online window
+    # (~45 poses, 141 columns) factors in ~0.1 ms, where building the banded split and
+    # its sparse slices cost ~1 ms of Python per factorisation (bench/node_latency.py).
+    MAX_DENSE_SIZE = 400
 
     def __init__(self, hessian, banded_size: int):
         hessian = hessian.tocsc()
         self._hessian = hessian
         self.n = banded_size
         self._lu = None
+        self._dense = None
+        if hessian.shape[0] <= self.MAX_DENSE_SIZE:
+            self._dense = scipy.linalg.cho_factor(hessian.toarray())
+            return
         coo = hessian[: self.n, : self.n].tocoo()
         upper = coo.col >= coo.row
         bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
@@ -273,6 +283,8 @@ class LinearSolver:
     REFINEMENT_STEPS = 3
 
     def solve(self, rhs):
+        if self._dense is not None:
+            return scipy.linalg.cho_solve(self._dense, rhs)
         if self._lu is not None:
             return self._lu.solve(rhs)
         # The Schur complement C − BᵀA⁻¹B of well-determined calibration parameters is a
@@ -301,16 +313,19 @@ def _solve_damped(problem, hessian, gradient, damping):
     return delta if np.all(np.isfinite(delta)) else None
 
 
-def _cost_or_inf(problem, values) -> float:
-    """The cost, or inf where the model is not defined (a step so long that a noise model
-    turned singular, e.g. a wheel base through zero): such a step is simply rejected."""
+def _system_or_none(problem, values):
+    """The linear system at `values`, or None where the model is not defined (a step so
+    long that a noise model turned singular, e.g. a wheel base through zero): such a step
+    is simply rejected. Evaluating a candidate step by its whole linear system, not its
+    cost alone, costs a little more for a rejected step and saves the re-linearisation of
+    every accepted one."""
     if not values.within_bounds():
-        return math.inf
+        return None
     try:
-        cost = problem.cost(values)
+        system = problem.linear_system(values)
     except (np.linalg.LinAlgError, FloatingPointError, ValueError):
-        return math.inf
-    return cost if math.isfinite(cost) else math.inf
+        return None
+    return system if math.isfinite(system.cost) else None
 
 
 def _normal_equations(system: System):
@@ -318,6 +333,11 @@ def _normal_equations(system: System):
     hessian = (jac.T @ jac).tocsc()
     gradient = jac.T @ system.residual
     return hessian, gradient
+
+
+def _predicted_decrease(hessian, gradient, delta) -> float:
+    """Cost decrease the linearised model promises for Δ: ‖r‖² − ‖r + JΔ‖²."""
+    return float(-(2.0 * gradient @ delta + delta @ (hessian @ delta)))
 
 
 def levenberg_marquardt(
@@ -339,21 +359,30 @@ def levenberg_marquardt(
         diag = hessian.diagonal()
         damping = sp.diags(lam * np.maximum(diag, 1e-9))
         accepted = False
+        first_try = True
         while lam < 1e10:
             delta = _solve_damped(problem, hessian, gradient, damping)
+            if delta is not None and first_try and _predicted_decrease(
+                    hessian, gradient, delta) < relative_tolerance * cost:
+                # Even the model's own step gains less than the tolerance: at a minimum.
+                # Without this stop a solve started at its optimum (a warm start) raised
+                # λ to 1e10 in 15 rejected steps, each a solve and a cost evaluation.
+                break
+            first_try = False
             if delta is not None:
                 candidate = values.retract(problem.layout, delta)
-                new_cost = _cost_or_inf(problem, candidate)
-                if new_cost < cost:
+                candidate_system = _system_or_none(problem, candidate)
+                if candidate_system is not None and candidate_system.cost < cost:
                     accepted = True
                     break
             lam *= 10.0
             damping = sp.diags(lam * np.maximum(diag, 1e-9))
         if not accepted:
-            converged = True  # no descent direction left at any damping: a minimum
+            converged = True  # at a minimum: no step gains enough, or none descends at all
             break
+        new_cost = candidate_system.cost
         improvement = (cost - new_cost) / max(cost, 1e-300)
-        values, cost = candidate, new_cost
+        values, system, cost = candidate, candidate_system, new_cost
         lam = max(lam / 10.0, 1e-12)
         history.append(cost)
         if progress is not None:
@@ -361,15 +390,17 @@ def levenberg_marquardt(
         if improvement < relative_tolerance:
             converged = True
             break
-        system = problem.linear_system(values)
     return SolverResult(
-        values, iteration, converged, initial_cost, cost, history, time.perf_counter() - start
+        values, iteration, converged, initial_cost, cost, history, time.perf_counter() - start,
+        system,
     )
 
 
-def factorize_information(problem: Problem, values: Values):
-    """Factorisation of the (robustly weighted) information matrix H = JᵀJ at `values`."""
-    system = problem.linear_system(values)
+def factorize_information(problem: Problem, values: Values, system: Optional[System] = None):
+    """Factorisation of the (robustly weighted) information matrix H = JᵀJ at `values`
+    (`system`: the linear system at `values` if already at hand, e.g. SolverResult.system)."""
+    if system is None:
+        system = problem.linear_system(values)
     hessian, _ = _normal_equations(system)
     return system, hessian, LinearSolver(hessian, problem.banded_size)
 

@@ -157,8 +157,9 @@ class EncoderStream:
         self._last_stamp = None
 
     def discard_before(self, stamp: float) -> None:
-        """Drop samples not needed to interpolate at ``stamp`` or later (keeps one before)."""
-        self._trim(stamp)
+        """Drop samples not needed to interpolate at ``stamp`` or later, nor to predict
+        beyond the newest sample (keeps two at or before ``stamp``)."""
+        self._trim(stamp, keep=2)
 
     # --- output ------------------------------------------------------------------------
     @property
@@ -196,6 +197,21 @@ class EncoderStream:
         right = self._right[i] + w * (self._right[i + 1] - self._right[i])
         return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[i]), None
 
+    def predict(self, t: float) -> Optional[WheelAngles]:
+        """Wheel angles at ``t``: interpolated inside the history, extrapolated at the last
+        two samples' speed a little beyond it (at most ``max_gap``), else None. For seeding
+        a scan match before the encoders reach the scan, never for an odometry edge."""
+        angles, reason = self.lookup(t)
+        if angles is not None or reason != "after_encoder_history" or len(self._stamps) < 2:
+            return angles
+        t1, t0 = self._stamps[-1], self._stamps[-2]
+        if t - t1 > self.config.max_gap or self._segments[-1] != self._segments[-2]:
+            return None
+        w = (t - t1) / (t1 - t0)
+        left = self._left[-1] + w * (self._left[-1] - self._left[-2])
+        right = self._right[-1] + w * (self._right[-1] - self._right[-2])
+        return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[-1])
+
     # --- internals -----------------------------------------------------------------------
     def _unwrap(self, delta: float) -> float:
         if self._wrap > 0.0:
@@ -221,9 +237,10 @@ class EncoderStream:
         self._right.append(right)
         self._segments.append(self.segment)
 
-    def _trim(self, stamp: float) -> None:
-        # Keep the last sample at or before ``stamp`` so ``stamp`` itself stays interpolable.
-        k = bisect.bisect_right(self._stamps, stamp) - 1
+    def _trim(self, stamp: float, keep: int = 1) -> None:
+        # Keep the last `keep` samples at or before ``stamp`` so ``stamp`` itself stays
+        # interpolable.
+        k = bisect.bisect_right(self._stamps, stamp) - keep
         if k > 0:
             del self._stamps[:k], self._left[:k], self._right[:k], self._segments[:k]
 
@@ -317,6 +334,11 @@ class ScanSynchronizer:
         self._last_scan_stamp = scan.stamp
         self._pending.append(scan)
         return self._resolve()
+
+    @property
+    def pending(self) -> tuple:
+        """The scans waiting for the encoders to reach their stamp, oldest first."""
+        return tuple(self._pending)
 
     def flush(self) -> list[SyncedScan]:
         """End of data: sync what can be, count the rest."""

@@ -8,6 +8,7 @@ from sclam_ros.solver import (
     CauchyKernel,
     Problem,
     Values,
+    factorize_information,
     levenberg_marquardt,
     marginal_covariance,
     redundancy_by_factor,
@@ -52,6 +53,25 @@ def test_recovers_truth_within_reported_sigma():
     assert np.all(np.abs(est - truth) < 4 * sigma), (est - truth) / sigma
     # And the estimate moved from the nominal start toward the truth.
     assert abs(est[2] - g["k"][2]) < 0.25 * abs(NOMINAL_K[2] - g["k"][2])
+
+
+def test_a_solve_started_at_its_optimum_stops_at_once_and_returns_its_system():
+    """A warm-started online solve often begins at the optimum: LM must see that the model
+    promises nothing (not raise λ through a string of rejected steps) and hand back the
+    linear system at its answer, whose information gives the same covariance."""
+    g = make_graph(n=300, seed=3)
+    problem = build_problem(g)
+    first = levenberg_marquardt(problem)
+    problem.values = first.values
+    again = levenberg_marquardt(problem)
+    assert again.converged and again.iterations == 1 and len(again.history) == 1
+    assert again.final_cost == first.final_cost
+    np.testing.assert_array_equal(calibration(again.values), calibration(first.values))
+    assert again.system.cost == pytest.approx(problem.cost(again.values), rel=1e-12)
+    _, _, factorized = factorize_information(problem, again.values, again.system)
+    np.testing.assert_allclose(
+        marginal_covariance(problem, again.values, ["odometry", "laser"], lu=factorized),
+        marginal_covariance(problem, again.values, ["odometry", "laser"]), rtol=1e-9)
 
 
 def test_normalised_errors_have_unit_rms_over_seeds():

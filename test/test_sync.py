@@ -63,6 +63,37 @@ def test_interpolation_exact_for_constant_speed_wheels():
     assert stream.wheel_angles_at(stamps[-1] + 1e-3) is None
 
 
+def test_prediction_beyond_the_newest_sample_is_exact_at_constant_speed_and_bounded():
+    """predict() seeds early scan registration: exact for constant speed, None past max_gap
+    or where the last two samples straddle a segment break."""
+    stream = EncoderStream(ticks_per_revolution=0.0, config=SyncConfig(max_gap=0.5))
+    w_left, w_right = 3.7, -1.3  # rad/s
+    for t in np.arange(0.0, 1.0, 0.01) + 100.0:
+        stream.add(t, w_left * (t - 100.0), w_right * (t - 100.0))
+    last = stream.latest_stamp
+    for ahead in (0.001, 0.007, 0.3):
+        t = last + ahead
+        np.testing.assert_allclose(stream.predict(t).angles, [w_left * (t - 100.0), w_right * (t - 100.0)],
+                                   atol=1e-9)
+    inside = last - 0.0042
+    np.testing.assert_allclose(stream.predict(inside).angles, stream.wheel_angles_at(inside).angles)
+    assert stream.predict(last + 0.6) is None
+    stream.add(last + 0.8, 0.0, 0.0)  # after a gap: a new segment with one sample
+    assert stream.predict(last + 0.81) is None
+
+
+def test_the_synchroniser_keeps_two_samples_so_a_waiting_scan_can_be_predicted():
+    stream = EncoderStream(ticks_per_revolution=0.0)
+    sync = ScanSynchronizer(stream)
+    for i in range(50):
+        sync.add_encoder(0.01 * i, 0.1 * i, 0.2 * i)
+    assert sync.add_scan(scan_at(0.4905)) == []  # waits for the sample at 0.50
+    assert len(sync.pending) == 1
+    np.testing.assert_allclose(stream.predict(0.4905).angles, [4.905, 9.81], atol=1e-9)
+    ready = sync.add_encoder(0.5, 5.0, 10.0)
+    assert len(ready) == 1 and sync.pending == ()
+
+
 def test_duplicate_and_out_of_order_stamps_are_counted_not_fatal():
     stream = EncoderStream()
     stream.add(1.0, 0.0, 0.0)
