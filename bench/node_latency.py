@@ -8,8 +8,8 @@ the running node. Each message is handed over at its record time (or as soon as 
 previous callback is done, if that is later: the wait counts as latency), so GIL and
 core sharing between callbacks and solver are in the numbers. Measured, in wall time:
   - scan → keyframe: from a scan's arrival to the end of the callback that turned it into
-    a keyframe (the frontend waits for the encoder sample after the scan, so that is
-    usually the next encoder callback);
+    a keyframe (the scan is registered in its own callback; the keyframe is finished by
+    the encoder callback that reaches its stamp, usually queued behind the registration);
   - scan → estimate update: for the scans whose keyframe asked for a window solve, from
     arrival to the publication of the first ~/wheel_parameters that includes them;
   - encoder → ~/odom: from an encoder message's arrival to the end of its callback
@@ -22,6 +22,7 @@ real time; RSS sampled every simulated minute must stay flat.
 
     python bench/node_latency.py                  # both rates, 120 s each; memory over 1 h
     python bench/node_latency.py --hours 0        # skip the memory run
+    python bench/node_latency.py --rates 40 --hours 0 --components [--scan-max-beams 0]
 """
 from __future__ import annotations
 
@@ -51,9 +52,70 @@ def rss_mb() -> float:
     return float("nan")
 
 
-def replay_through_node(bag, params_file):
+class ComponentTimer:
+    """Wall time of the node's pieces during a run (--components): each named function is
+    wrapped for the run, and the garbage collector's passes are timed by generation."""
+
+    PIECES = (  # (module, attribute path, name in the table)
+        ("sclam_ros.frontend", "Frontend._register", "scan registration (matcher + point-to-line)"),
+        ("sclam_ros.window", "OnlineCalibrator.prepare_solve", "solve: build the problem (under the lock)"),
+        ("sclam_ros.solver_thread", "run_solve", "solve: LM + covariance"),
+        ("sclam_ros.window", "OnlineCalibrator.marginalise_chunks", "marginalise leaving keyframes"),
+    )
+
+    def __init__(self):
+        self.seconds = {}
+        self._restore = []
+
+    def __enter__(self):
+        import gc
+        import importlib
+
+        for module_name, path, label in self.PIECES:
+            owner = importlib.import_module(module_name)
+            *outer, attr = path.split(".")
+            for name in outer:
+                owner = getattr(owner, name)
+            original = getattr(owner, attr)
+            setattr(owner, attr, self._timed(original, label))
+            self._restore.append((owner, attr, original))
+        self._gc_start = None
+        gc.callbacks.append(self._on_gc)
+        return self
+
+    def __exit__(self, *exc):
+        import gc
+
+        gc.callbacks.remove(self._on_gc)
+        for owner, attr, original in reversed(self._restore):
+            setattr(owner, attr, original)
+
+    def _timed(self, function, label):
+        def timed(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds.setdefault(label, []).append(time.perf_counter() - start)
+        return timed
+
+    def _on_gc(self, phase, info):
+        if phase == "start":
+            self._gc_start = time.perf_counter()
+        elif self._gc_start is not None:
+            label = f"garbage collection, generation {info['generation']}"
+            self.seconds.setdefault(label, []).append(time.perf_counter() - self._gc_start)
+
+    def rows(self):
+        return [[label, len(v), f"{1e3 * np.median(v):.1f}", f"{1e3 * np.percentile(v, 90):.1f}",
+                 f"{1e3 * np.percentile(v, 99):.1f}", f"{1e3 * np.max(v):.1f}"]
+                for label, v in self.seconds.items()]
+
+
+def replay_through_node(bag, params_file, scan_max_beams=None, timer=None):
     """Real-time replay; per message (is_scan, arrival, finish, frames made, solve asked,
-    skipped) and the (wall time, keyframe stamp) of every published estimate."""
+    skipped) and the (wall time, keyframe stamp) of every published estimate. With a
+    ComponentTimer, its pieces are timed from the node's construction on."""
     import rclpy
 
     from sclam_ros.bag import iter_messages, topic_info
@@ -62,6 +124,8 @@ def replay_through_node(bag, params_file):
     from sclam_ros.params import SclamParams
 
     params = SclamParams.from_yaml(params_file)
+    if scan_max_beams is not None:
+        params.scan_max_beams = scan_max_beams
     info = topic_info(bag)
     topics = [params.joint_states_topic, params.scan_topic]
     messages = [(topic, t, rosbags_to_rclpy(msg, rclpy_class(info[topic][0])))
@@ -72,6 +136,8 @@ def replay_through_node(bag, params_file):
         overrides = [rclpy.parameter.Parameter(k, value=v) for k, v in
                      params.to_yaml_dict()["sclam"]["ros__parameters"].items()]
         node = SclamNode(context=context, parameter_overrides=overrides)
+        if timer is not None:
+            timer.__enter__()
         published = []  # (wall time, stamp of the newest keyframe in the solve)
         publish = node._publish_estimate
 
@@ -101,6 +167,8 @@ def replay_through_node(bag, params_file):
         time.sleep(1.0)  # let the last solve finish
         records = [(bool(r[0]), r[1], r[2], int(r[3]), bool(r[4]), bool(r[5]), r[6]) for r in table_]
         cpu = time.process_time() - cpu0
+        if timer is not None:
+            timer.__exit__(None, None, None)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
@@ -163,16 +231,29 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=120.0, help="s per latency run")
     parser.add_argument("--hours", type=float, default=1.0, help="simulated hours for the memory run")
+    parser.add_argument("--rates", type=float, nargs="+", default=[10.0, 40.0],
+                        help="scan rates to run: 10 (360 beams), 40 (1080 beams)")
+    parser.add_argument("--scan-max-beams", type=float, default=None,
+                        help="override the parameter (default: the recording's params.yaml)")
+    parser.add_argument("--components", action="store_true",
+                        help="also time the node's pieces (registration, solve, GC) per run")
     args = parser.parse_args()
     from sclam_ros.sim import simulate
 
     workdir = Path(tempfile.mkdtemp(prefix="sclam_latency_"))
     rows = []
+    components = []
     for scan_rate, beams, encoder_rate in ((10.0, 360, 100.0), (40.0, 1080, 100.0)):
+        if scan_rate not in args.rates:
+            continue
         bag = workdir / f"s{scan_rate:g}_b{beams}"
         simulate(bag, robot="powerbot", duration=args.duration, seed=4, scan_rate=scan_rate,
                  beams=beams, encoder_rate=encoder_rate, overwrite=True)
-        records, published, cpu = replay_through_node(bag, bag / "params.yaml")
+        timer = ComponentTimer() if args.components else None
+        records, published, cpu = replay_through_node(bag, bag / "params.yaml",
+                                                      args.scan_max_beams, timer)
+        if timer is not None:
+            components += [[f"{scan_rate:g} Hz / {beams}"] + row for row in timer.rows()]
         scan, solve, odom, dropped = latencies(records, published)
         period = 1.0 / scan_rate
         skipped = sum(r[5] for r in records)
@@ -193,6 +274,9 @@ def main():
                        "scan→keyframe p50", "p99", "solves", "scan→estimate update p50", "p99",
                        "scan period", "update p99 < period",
                        "encoder→odom p50", "p99", "CPU of one core", "encoder msgs dropped"]))
+    if components:
+        print("\nthe node's pieces during those runs (ms of wall time)")
+        print(table(components, ["scans", "piece", "calls", "p50", "p90", "p99", "max"]))
     if args.hours > 0:
         samples = memory_run(args.hours, workdir, 10.0, 360, 100.0)
         print(f"\nmemory: {args.hours:g} h of simulated data (10 Hz / 360 beams, 100 Hz encoders) "

@@ -1,9 +1,10 @@
 """The online window solve on a thread of its own.
 
-A window solve takes tens of milliseconds (LM over ~100 poses in numpy). Run in a
-subscription callback it holds up every message queued behind it: at 40 Hz scans and
-100 Hz encoders, ~/odom and the next keyframes waited for it (measured before this
-module: encoder → odom p99 32 ms, bench/node_latency.py). Here the callbacks only append
+A window solve takes ~10 ms (a few warm-started LM steps over ~45 poses in numpy; 15-35 ms
+before its iterations were capped). Run in a subscription callback it holds up every
+message queued behind it: at 40 Hz scans and 100 Hz encoders, ~/odom and the next
+keyframes waited for it (measured before this module: encoder → odom p99 32 ms,
+bench/node_latency.py). Here the callbacks only append
 keyframes and ask for a solve; this thread marginalises the keyframes that left the pose
 window and solves the window with the shared lock released, taking it only to read and
 write the calibrator's state (prepare_solve, apply_solve, take_chunks_due, add_chunks).
