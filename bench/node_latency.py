@@ -27,6 +27,7 @@ real time; RSS sampled every simulated minute must stay flat.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import tempfile
@@ -115,7 +116,7 @@ class ComponentTimer:
 def replay_through_node(bag, params_file, scan_max_beams=None, timer=None):
     """Real-time replay; per message (is_scan, arrival, finish, frames made, solve asked,
     skipped) and the (wall time, keyframe stamp) of every published estimate. With a
-    ComponentTimer, its pieces are timed from the node's construction on."""
+    ComponentTimer, its pieces are timed during the replay."""
     import rclpy
 
     from sclam_ros.bag import iter_messages, topic_info
@@ -136,8 +137,6 @@ def replay_through_node(bag, params_file, scan_max_beams=None, timer=None):
         overrides = [rclpy.parameter.Parameter(k, value=v) for k, v in
                      params.to_yaml_dict()["sclam"]["ros__parameters"].items()]
         node = SclamNode(context=context, parameter_overrides=overrides)
-        if timer is not None:
-            timer.__enter__()
         published = []  # (wall time, stamp of the newest keyframe in the solve)
         publish = node._publish_estimate
 
@@ -149,26 +148,25 @@ def replay_through_node(bag, params_file, scan_max_beams=None, timer=None):
         # Preallocated: a growing list of tuples would be the bench's own garbage-collector
         # load (a full collection walks every tuple), charged to the node's latency.
         table_ = np.zeros((len(messages), 7))
-        t_first, wall0 = messages[0][1], time.perf_counter() + 0.5
-        cpu0 = time.process_time()
-        for row, (topic, t, msg) in enumerate(messages):
-            arrival = wall0 + (t - t_first)
-            while (now := time.perf_counter()) < arrival:
-                time.sleep(min(arrival - now, 0.002))
-            is_scan = topic == params.scan_topic
-            frames_before = node.calibrator.frontend._count
-            requests_before = node.solver.requests
-            skipped_before = node.calibrator.skipped_scans
-            (node._on_scan if is_scan else node._on_joint_state)(msg)
-            table_[row] = (is_scan, arrival, time.perf_counter(),
-                           node.calibrator.frontend._count - frames_before,
-                           node.solver.requests > requests_before,
-                           node.calibrator.skipped_scans > skipped_before, _stamp(msg))
-        time.sleep(1.0)  # let the last solve finish
+        with timer or contextlib.nullcontext():
+            t_first, wall0 = messages[0][1], time.perf_counter() + 0.5
+            cpu0 = time.process_time()
+            for row, (topic, t, msg) in enumerate(messages):
+                arrival = wall0 + (t - t_first)
+                while (now := time.perf_counter()) < arrival:
+                    time.sleep(min(arrival - now, 0.002))
+                is_scan = topic == params.scan_topic
+                frames_before = node.calibrator.frontend._count
+                requests_before = node.solver.requests
+                skipped_before = node.calibrator.skipped_scans
+                (node._on_scan if is_scan else node._on_joint_state)(msg)
+                table_[row] = (is_scan, arrival, time.perf_counter(),
+                               node.calibrator.frontend._count - frames_before,
+                               node.solver.requests > requests_before,
+                               node.calibrator.skipped_scans > skipped_before, _stamp(msg))
+            time.sleep(1.0)  # let the last solve finish
+            cpu = time.process_time() - cpu0
         records = [(bool(r[0]), r[1], r[2], int(r[3]), bool(r[4]), bool(r[5]), r[6]) for r in table_]
-        cpu = time.process_time() - cpu0
-        if timer is not None:
-            timer.__exit__(None, None, None)
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)

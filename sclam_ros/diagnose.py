@@ -314,14 +314,18 @@ class _Models:
     def effects(self, names):
         return [LIBRARY[n](self.data) for n in names]
 
+    def split_effects(self, names):
+        """(mechanical effects, the noise effect or None), fresh instances of `names`."""
+        effects = self.effects(names)
+        return ([e for e in effects if e.kind != "noise"],
+                next((e for e in effects if e.kind == "noise"), None))
+
     def fit_whole(self, names):
         """(Fit of the mechanical effects, fitted noise effect or None, whole-run cost)."""
         key = tuple(names)
         if key not in self.whole:
-            effects = self.effects(names)
-            mech = [e for e in effects if e.kind != "noise"]
+            mech, noise = self.split_effects(names)
             fit = _fit_effects(self.base, mech) if mech else self.base
-            noise = next((e for e in effects if e.kind == "noise"), None)
             cost = fit.cost
             if noise is not None:  # 2·ΔNLL: the same scale as the graph's χ²-type cost
                 before, after = _fit_noise(noise, fit, mech, self.inputs, self.edges, self.odo_cov)
@@ -335,10 +339,8 @@ class _Models:
         if key not in self.heldout:
             per_fold = []
             for fold in self.folds:
-                effects = self.effects(names)
-                mech = [e for e in effects if e.kind != "noise"]
+                mech, noise = self.split_effects(names)  # a noise effect is fitted per fold
                 fit = _fit_effects(fold.train, mech) if mech else fold.train
-                noise = next((e for e in effects if e.kind == "noise"), None)
                 if noise is not None:
                     _fit_noise(noise, fit, mech, self.inputs, fold.train_edges, self.odo_cov)
                 per_fold.append(edge_nll(fit, mech, self.inputs, fold.test, self.odo_cov, noise))
@@ -469,7 +471,7 @@ def _effect_json(ev: dict, selected: bool, base_error: float) -> dict:
 def _extended_fit(models: _Models, selected):
     """The selected effects fitted together (variance components re-estimated), with the
     final value and σ of each."""
-    mech = [e for e in models.effects(selected) if e.kind != "noise"]
+    mech, _ = models.split_effects(selected)
     ext = _fit_effects(models.base, mech, variance_components=True) if mech else models.base
     noise = models.fit_whole(selected)[1]
     final = {n: _effect_value(models, ext, noise, n) for n in selected}

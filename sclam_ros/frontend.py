@@ -119,21 +119,17 @@ class Frontend:
         registration = _Registration(scan, self.registered)
         self.registered += 1
         scan = thinned(scan, self.params.scan_max_beams)
-        match = self.matcher.add_scan(scan, guess)
-        points = None
+        config = self.matcher.config
+        points = scan_to_points(scan, config.min_range, config.max_range)
+        match = self.matcher.add_scan(scan, guess, points)
         if match is not None:
             z = np.asarray(match.z, float)
-            points = scan_to_points(scan, self.matcher.config.min_range,
-                                    self.matcher.config.max_range)
             if self._reference_number == match.index_from:
                 z, _ = point_to_line.refine(self._reference, points, z)
             registration.match_from = int(match.index_from)
             registration.laser_motion = z
             registration.laser_information = np.asarray(match.information, float)
         if match is not None or self._reference_number is None:
-            if points is None:
-                points = scan_to_points(scan, self.matcher.config.min_range,
-                                        self.matcher.config.max_range)
             self._reference = point_to_line.ReferenceScan.from_points(points)
             self._reference_number = registration.number
         return registration

@@ -244,7 +244,9 @@ class ScanMatcher:
         self._map_scans = 0  # scans in the current local map
 
     # -- the one entry point ----------------------------------------------------------------
-    def add_scan(self, scan: Scan, odometry_guess: Optional[np.ndarray] = None) -> Optional[Match]:
+    def add_scan(self, scan: Scan, odometry_guess: Optional[np.ndarray] = None,
+                 points: Optional[np.ndarray] = None) -> Optional[Match]:
+        """`points`: scan_to_points(scan, min_range, max_range) if the caller has them."""
         index = self._count
         self._count += 1
         if odometry_guess is not None:
@@ -253,7 +255,7 @@ class ScanMatcher:
             self._pending_complete = False
 
         c = self.config
-        frame = scan_to_points(scan, c.min_range, c.max_range)
+        frame = scan_to_points(scan, c.min_range, c.max_range) if points is None else points
         if len(frame) < c.min_points:
             reason = "scan_empty" if len(frame) == 0 else "scan_too_few_points"
             self.rejections.add(reason)

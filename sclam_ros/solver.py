@@ -356,19 +356,19 @@ def levenberg_marquardt(
     iteration = 0
     for iteration in range(1, max_iterations + 1):
         hessian, gradient = _normal_equations(system)
-        diag = hessian.diagonal()
-        damping = sp.diags(lam * np.maximum(diag, 1e-9))
+        diag = np.maximum(hessian.diagonal(), 1e-9)
+
+        def damped_step(lam):
+            return _solve_damped(problem, hessian, gradient, sp.diags(lam * diag))
+
         accepted = False
-        first_try = True
-        while lam < 1e10:
-            delta = _solve_damped(problem, hessian, gradient, damping)
-            if delta is not None and first_try and _predicted_decrease(
-                    hessian, gradient, delta) < relative_tolerance * cost:
-                # Even the model's own step gains less than the tolerance: at a minimum.
-                # Without this stop a solve started at its optimum (a warm start) raised
-                # λ to 1e10 in 15 rejected steps, each a solve and a cost evaluation.
-                break
-            first_try = False
+        delta = damped_step(lam)
+        # Even the model's own step gains less than the tolerance: at a minimum. Without
+        # this stop a solve started at its optimum (a warm start) raised λ to 1e10 in 15
+        # rejected steps, each a solve and a cost evaluation.
+        at_minimum = delta is not None and (
+            _predicted_decrease(hessian, gradient, delta) < relative_tolerance * cost)
+        while not at_minimum and lam < 1e10:
             if delta is not None:
                 candidate = values.retract(problem.layout, delta)
                 candidate_system = _system_or_none(problem, candidate)
@@ -376,7 +376,7 @@ def levenberg_marquardt(
                     accepted = True
                     break
             lam *= 10.0
-            damping = sp.diags(lam * np.maximum(diag, 1e-9))
+            delta = damped_step(lam) if lam < 1e10 else None
         if not accepted:
             converged = True  # at a minimum: no step gains enough, or none descends at all
             break

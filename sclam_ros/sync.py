@@ -192,10 +192,7 @@ class EncoderStream:
             return WheelAngles(t, angles, self._segments[i]), None
         if self._segments[i] != self._segments[i + 1]:
             return None, "in_encoder_gap"
-        w = (t - stamps[i]) / (stamps[i + 1] - stamps[i])
-        left = self._left[i] + w * (self._left[i + 1] - self._left[i])
-        right = self._right[i] + w * (self._right[i + 1] - self._right[i])
-        return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[i]), None
+        return self._on_line(i, t), None
 
     def predict(self, t: float) -> Optional[WheelAngles]:
         """Wheel angles at ``t``: interpolated inside the history, extrapolated at the last
@@ -204,15 +201,19 @@ class EncoderStream:
         angles, reason = self.lookup(t)
         if angles is not None or reason != "after_encoder_history" or len(self._stamps) < 2:
             return angles
-        t1, t0 = self._stamps[-1], self._stamps[-2]
-        if t - t1 > self.config.max_gap or self._segments[-1] != self._segments[-2]:
+        if t - self._stamps[-1] > self.config.max_gap or self._segments[-1] != self._segments[-2]:
             return None
-        w = (t - t1) / (t1 - t0)
-        left = self._left[-1] + w * (self._left[-1] - self._left[-2])
-        right = self._right[-1] + w * (self._right[-1] - self._right[-2])
-        return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[-1])
+        return self._on_line(len(self._stamps) - 2, t)
 
     # --- internals -----------------------------------------------------------------------
+    def _on_line(self, i: int, t: float) -> WheelAngles:
+        """Wheel angles at ``t`` on the line through samples i and i + 1 (same segment)."""
+        stamps = self._stamps
+        w = (t - stamps[i]) / (stamps[i + 1] - stamps[i])
+        left = self._left[i] + w * (self._left[i + 1] - self._left[i])
+        right = self._right[i] + w * (self._right[i + 1] - self._right[i])
+        return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[i])
+
     def _unwrap(self, delta: float) -> float:
         if self._wrap > 0.0:
             # Map the raw difference into [-wrap/2, wrap/2): exact for integer tick counts.

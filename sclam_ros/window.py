@@ -143,6 +143,7 @@ class OnlineCalibrator:
         self.rejections = rejections if rejections is not None else Rejections()
         self.solve_every = solve_every
         self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+        self.generation = 0  # counts window resets; solves and chunks from older ones are void
         self.frontend = Frontend(params, self.rejections)
         self.merger = KeyframeMerger(params.keyframe_interval)
         self.reset_calibration()
@@ -161,7 +162,7 @@ class OnlineCalibrator:
         self._last_scan_stamp = None
         self._solved_poses = {}  # keyframe index -> pose of the last solve (warm start)
         self.solve_pending = False  # a solve is due (inline_solve False: the caller runs it)
-        self.generation = getattr(self, "generation", 0) + 1
+        self.generation += 1
 
     def reset_calibration(self) -> None:
         """Back to the nominal values and no accumulated information at all."""
@@ -184,8 +185,12 @@ class OnlineCalibrator:
     def forget_radii(self) -> None:
         """Cut the radii window to the pose window (a change of the radii was detected)."""
         while self.history:
-            self.permanent = self.permanent + self.history.popleft().gaussian.without_radii()
+            self._retire_oldest_chunk()
         self._over_threshold = 0
+
+    def _retire_oldest_chunk(self) -> None:
+        """The oldest chunk leaves the radii window: only its (b, l) is kept, for good."""
+        self.permanent = self.permanent + self.history.popleft().gaussian.without_radii()
 
     # --- data -----------------------------------------------------------------------------
     def add_encoder(self, stamp, left_raw, right_raw) -> Optional[Estimate]:
@@ -225,9 +230,13 @@ class OnlineCalibrator:
     def pose_window_length(self) -> float:
         return float(sum(self._distance))
 
+    def history_length(self) -> float:
+        """Metres of travel of the marginalised chunks still in the radii window."""
+        return float(sum(c.metres for c in self.history))
+
     def window_length(self) -> float:
         """Metres of travel the radii are estimated from (poses + marginalised chunks)."""
-        return self.pose_window_length() + sum(c.metres for c in self.history)
+        return self.pose_window_length() + self.history_length()
 
     def _trim(self) -> None:
         pose_limit = min(self.params.window_distance, POSE_WINDOW_DISTANCE)
@@ -250,7 +259,7 @@ class OnlineCalibrator:
 
     def _trim_history(self) -> None:
         while self.history and self.window_length() > self.params.window_distance:
-            self.permanent = self.permanent + self.history.popleft().gaussian.without_radii()
+            self._retire_oldest_chunk()
 
     # Marginalising a chunk costs a few ms of dense algebra; the node does it on its solver
     # thread, outside its lock (take_chunks_due / marginalise / add_chunks), not in a callback.
@@ -365,7 +374,7 @@ class OnlineCalibrator:
         prior = self.prior() + gaussian_of_prior(self.nominal, graph_mod.prior_sigmas(self.nominal))
         return SolveJob(self.generation, [kf.index for kf in window], float(inputs.stamps[-1]),
                         problem, len(window), self.window_length(), prior,
-                        change_testable=sum(c.metres for c in self.history) >= MIN_TESTED_HISTORY)
+                        change_testable=self.history_length() >= MIN_TESTED_HISTORY)
 
     def apply_solve(self, outcome: Optional["SolveOutcome"]) -> Optional[Estimate]:
         if outcome is None:
