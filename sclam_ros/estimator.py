@@ -108,12 +108,14 @@ def excited_parameters(problem, prior_sigma) -> np.ndarray:
     return np.sqrt(np.diag(cov)) < UNOBSERVED_SIGMA_RATIO * prior_sigma
 
 
-def residual_rms(problem, values) -> dict:
-    out = {}
-    for factor in problem.factors:
-        if factor.measurement and len(factor):
-            out[factor.name] = np.sqrt(np.mean(factor.residuals(values) ** 2, axis=0))
-    return out
+def residual_rms(problem, values, system=None) -> dict:
+    """RMS of the raw residuals per measurement factor type and component; `system`: the
+    linear system at `values` if at hand (e.g. SolverResult.system), saving a linearisation."""
+    if system is None:
+        system = problem.linear_system(values)
+    measured = {f.name for f in problem.factors if f.measurement}
+    return {name: np.sqrt(stats["squared_residual_sum"] / stats["count"])
+            for name, stats in system.per_factor.items() if name in measured}
 
 
 def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> CalibrationResult:

@@ -134,15 +134,26 @@ class Layout:
         return offset + np.arange(len(rows) * self.dims[name])
 
 
+# Up to this many columns the linear system is dense: the online window (~45-75 poses,
+# 141-231 columns) built as a sparse matrix spent ~1.5 ms of Python per linearisation in
+# scipy.sparse's constructors and another ~1 ms per damped solve, against tens of µs for
+# the same dense BLAS work (bench/node_latency.py --components).
+DENSE_MAX_COLUMNS = 400
+
+
 @dataclass
 class System:
     """The whitened, robustly weighted linear system at one linearisation point."""
 
-    jacobian: sp.csr_matrix
+    jacobian: "sp.csr_matrix | np.ndarray"  # dense up to DENSE_MAX_COLUMNS columns
     residual: np.ndarray  # whitened and weighted
     cost: float  # Σ ρ(s) over all edges (the robust cost)
-    per_factor: dict  # factor name -> dict(cost, chi2, count, dim, weights)
+    per_factor: dict  # factor name -> dict(cost, chi2, count, dim, weights, squared_residual_sum)
     row_ranges: list  # (factor name, first row, end row) in stacking order
+    normal: Optional[tuple] = None  # (H, g) once _normal_equations has formed them
+
+    def dense_jacobian(self) -> np.ndarray:
+        return self.jacobian.toarray() if sp.issparse(self.jacobian) else self.jacobian
 
 
 @dataclass
@@ -192,13 +203,16 @@ class Problem:
             cost = float(np.sum(kernel.rho(squared)))
             total_cost += cost
             stats = per_factor.setdefault(
-                factor.name, {"cost": 0.0, "chi2": 0.0, "count": 0, "dim": 0, "weights": []}
+                factor.name, {"cost": 0.0, "chi2": 0.0, "count": 0, "dim": 0, "weights": [],
+                              "squared_residual_sum": 0.0}
             )
             stats["cost"] += cost
             stats["chi2"] += float(np.sum(weight * squared))
             stats["count"] += len(factor)
             stats["dim"] += len(factor) * lin.residual.shape[1]
             stats["weights"].append(weight)
+            # Per component, raw (not whitened): for residual RMS reports (estimator.residual_rms).
+            stats["squared_residual_sum"] = stats["squared_residual_sum"] + np.sum(lin.residual**2, axis=0)
             m, d = lin.residual.shape
             residuals.append((whitened * sqrt_w[:, None]).ravel())
             edge_rows = row0 + np.arange(m * d).reshape(m, d)
@@ -218,10 +232,15 @@ class Problem:
                 data_all.append(jac[keep].ravel())
             row_ranges.append((factor.name, row0, row0 + m * d))
             row0 += m * d
-        jacobian = sp.csr_matrix(
-            (np.concatenate(data_all), (np.concatenate(rows_all), np.concatenate(cols_all))),
-            shape=(row0, self.layout.size),
-        )
+        rows, cols, data = (np.concatenate(rows_all), np.concatenate(cols_all),
+                            np.concatenate(data_all))
+        if self.layout.size <= DENSE_MAX_COLUMNS:
+            # bincount sums entries that two blocks put in the same place (np.add.at does
+            # too, at 0.7 ms a call for this size).
+            jacobian = np.bincount(rows * self.layout.size + cols, data,
+                                   row0 * self.layout.size).reshape(row0, self.layout.size)
+        else:
+            jacobian = sp.csr_matrix((data, (rows, cols)), shape=(row0, self.layout.size))
         return System(jacobian, np.concatenate(residuals), total_cost, per_factor, row_ranges)
 
     def cost(self, values: Values) -> float:
@@ -248,20 +267,19 @@ class LinearSolver:
     """
 
     MAX_BANDWIDTH = 90  # scalar columns; 30 poses
-    # Up to this many columns, one dense Cholesky of the whole H: the online window
-    # (~45 poses, 141 columns) factors in ~0.1 ms, where building the banded split and
-    # its sparse slices cost ~1 ms of Python per factorisation (bench/node_latency.py).
-    MAX_DENSE_SIZE = 400
 
     def __init__(self, hessian, banded_size: int):
-        hessian = hessian.tocsc()
-        self._hessian = hessian
         self.n = banded_size
         self._lu = None
         self._dense = None
-        if hessian.shape[0] <= self.MAX_DENSE_SIZE:
-            self._dense = scipy.linalg.cho_factor(hessian.toarray())
+        if not sp.issparse(hessian):
+            # Up to DENSE_MAX_COLUMNS, one dense Cholesky of the whole H: the online
+            # window factors in ~0.1 ms, where building the banded split and its sparse
+            # slices cost ~1 ms of Python per factorisation.
+            self._dense = scipy.linalg.cho_factor(hessian)
             return
+        hessian = hessian.tocsc()
+        self._hessian = hessian
         coo = hessian[: self.n, : self.n].tocoo()
         upper = coo.col >= coo.row
         bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
@@ -305,9 +323,11 @@ class LinearSolver:
 
 
 def _solve_damped(problem, hessian, gradient, damping):
-    """Δ of (H + D) Δ = −g, or None when the damped matrix is still not positive definite."""
+    """Δ of (H + diag(damping)) Δ = −g, or None when the damped matrix is still not
+    positive definite."""
+    damped = hessian + (sp.diags(damping) if sp.issparse(hessian) else np.diag(damping))
     try:
-        delta = LinearSolver(hessian + damping, problem.banded_size).solve(-gradient)
+        delta = LinearSolver(damped, problem.banded_size).solve(-gradient)
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
         return None
     return delta if np.all(np.isfinite(delta)) else None
@@ -329,10 +349,13 @@ def _system_or_none(problem, values):
 
 
 def _normal_equations(system: System):
-    jac = system.jacobian
-    hessian = (jac.T @ jac).tocsc()
-    gradient = jac.T @ system.residual
-    return hessian, gradient
+    """(H, g) = (JᵀJ, Jᵀr), formed once per system (LM's last one is the covariance's)."""
+    if system.normal is None:
+        jac = system.jacobian
+        hessian = jac.T @ jac
+        hessian = hessian.tocsc() if sp.issparse(hessian) else hessian
+        system.normal = hessian, jac.T @ system.residual
+    return system.normal
 
 
 def _predicted_decrease(hessian, gradient, delta) -> float:
@@ -359,7 +382,7 @@ def levenberg_marquardt(
         diag = np.maximum(hessian.diagonal(), 1e-9)
 
         def damped_step(lam):
-            return _solve_damped(problem, hessian, gradient, sp.diags(lam * diag))
+            return _solve_damped(problem, hessian, gradient, lam * diag)
 
         accepted = False
         delta = damped_step(lam)

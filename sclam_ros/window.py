@@ -342,7 +342,7 @@ class OnlineCalibrator:
             return None
         problem.factors = [f for f in problem.factors if f.measurement]
         system = problem.linear_system(problem.values)
-        jac = system.jacobian.toarray()
+        jac = system.dense_jacobian()
         hessian = jac.T @ jac
         gradient = jac.T @ system.residual
         layout = problem.layout
@@ -467,7 +467,7 @@ def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
     _, _, factorized = factorize_information(problem, result.values, result.system)
     cov = marginal_covariance(problem, result.values, ["odometry", "laser"], lu=factorized)
     return SolveOutcome(job, calibration, cov, result.values["poses"], result.converged,
-                        residual_rms(problem, result.values))
+                        residual_rms(problem, result.values, result.system))
 
 
 @dataclass

@@ -145,3 +145,44 @@ def test_sandwich_sigma_is_honest_when_scan_errors_are_correlated():
     # probability; the sandwich σ is itself estimated from 400 edges, so allow [0.6, 1.8]
     # (the acceptance band for honest σ is [0.5, 2]).
     assert np.all((rms_hac > 0.6) & (rms_hac < 1.8)), rms_hac
+
+
+def test_dense_and_sparse_linear_systems_agree(monkeypatch):
+    """Small problems (the online window) are linearised into a dense Jacobian and solved
+    by one dense Cholesky; large ones stay sparse (banded Cholesky + Schur). Both are the
+    same mathematics: the same Jacobian, optimum and covariance to rounding."""
+    from sclam_ros import solver
+
+    g = make_graph(n=60, seed=5)
+    problem = build_problem(g)
+    assert problem.layout.size <= solver.DENSE_MAX_COLUMNS
+    dense_system = problem.linear_system(problem.values)
+    dense = levenberg_marquardt(problem)
+    dense_cov = marginal_covariance(problem, dense.values, ["odometry", "laser"])
+    monkeypatch.setattr(solver, "DENSE_MAX_COLUMNS", 0)
+    sparse_system = problem.linear_system(problem.values)
+    assert isinstance(dense_system.jacobian, np.ndarray)
+    assert not isinstance(sparse_system.jacobian, np.ndarray)
+    np.testing.assert_array_equal(dense_system.jacobian, sparse_system.dense_jacobian())
+    sparse = levenberg_marquardt(problem)
+    np.testing.assert_allclose(calibration(dense.values), calibration(sparse.values),
+                               rtol=1e-9, atol=1e-12)
+    sparse_cov = marginal_covariance(problem, sparse.values, ["odometry", "laser"])
+    sigma = np.sqrt(np.diag(dense_cov))  # compared in units of σ_i σ_j: correlations too
+    np.testing.assert_allclose(sparse_cov / np.outer(sigma, sigma),
+                               dense_cov / np.outer(sigma, sigma), rtol=0, atol=1e-6)
+
+
+def test_residual_rms_from_the_solvers_system_is_the_rms_of_the_residuals():
+    from sclam_ros.estimator import residual_rms
+
+    g = make_graph(n=60, seed=6)
+    problem = build_problem(g)
+    result = levenberg_marquardt(problem)
+    rms = residual_rms(problem, result.values, result.system)
+    assert set(rms) == {"odometry", "laser"}
+    for factor in problem.factors:
+        direct = np.sqrt(np.mean(factor.residuals(result.values) ** 2, axis=0))
+        np.testing.assert_allclose(rms[factor.name], direct, rtol=1e-12)
+    np.testing.assert_allclose(rms["laser"], residual_rms(problem, result.values)["laser"],
+                               rtol=1e-12)
