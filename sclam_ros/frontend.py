@@ -75,6 +75,7 @@ class Frontend:
         self.matcher = matcher or ScanMatcher(
             ScanMatcherConfig.from_params(params), rejections=self.rejections
         )
+        self.refined_matcher = point_to_line.RefinedScanMatcher(self.matcher)
         # The calibration used for the matcher's initial guess; the online estimator
         # updates it as it learns.
         self.calibration = np.array(
@@ -87,9 +88,6 @@ class Frontend:
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
-        # The last scan the matcher accepted, prepared for point-to-line refinement.
-        self._reference = None
-        self._reference_number = None
 
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list:
         return [self._keyframe(s) for s in self.sync.add_encoder(stamp, left_raw, right_raw)]
@@ -121,17 +119,11 @@ class Frontend:
         scan = thinned(scan, self.params.scan_max_beams)
         config = self.matcher.config
         points = scan_to_points(scan, config.min_range, config.max_range)
-        match = self.matcher.add_scan(scan, guess, points)
+        match, z = self.refined_matcher.add_scan(scan, guess, points)
         if match is not None:
-            z = np.asarray(match.z, float)
-            if self._reference_number == match.index_from:
-                z, _ = point_to_line.refine(self._reference, points, z)
             registration.match_from = int(match.index_from)
             registration.laser_motion = z
             registration.laser_information = np.asarray(match.information, float)
-        if match is not None or self._reference_number is None:
-            self._reference = point_to_line.ReferenceScan.from_points(points)
-            self._reference_number = registration.number
         return registration
 
     def _keyframe(self, synced) -> Keyframe:

@@ -87,7 +87,7 @@ class GraphInputs:
         if any(getattr(kf, "dphi_parts", None) is not None for kf in keyframes):
             chunks = [kf.dphi_parts if getattr(kf, "dphi_parts", None) is not None else kf.dphi[None]
                       for kf in keyframes if kf.dphi is not None and kf.index - first - 1 >= 0]
-            parts = np.zeros((len(chunks), max(len(c) for c in chunks), 2))
+            parts = np.zeros((len(chunks), max((len(c) for c in chunks), default=1), 2))
             for row, chunk in enumerate(chunks):
                 parts[row, : len(chunk)] = chunk
         return cls(

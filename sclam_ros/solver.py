@@ -211,8 +211,9 @@ class Problem:
             stats["count"] += len(factor)
             stats["dim"] += len(factor) * lin.residual.shape[1]
             stats["weights"].append(weight)
-            # Per component, raw (not whitened): for residual RMS reports (estimator.residual_rms).
-            stats["squared_residual_sum"] = stats["squared_residual_sum"] + np.sum(lin.residual**2, axis=0)
+            if factor.measurement:  # per component, raw: for estimator.residual_rms
+                stats["squared_residual_sum"] = (stats["squared_residual_sum"]
+                                                 + np.sum(lin.residual**2, axis=0))
             m, d = lin.residual.shape
             residuals.append((whitened * sqrt_w[:, None]).ravel())
             edge_rows = row0 + np.arange(m * d).reshape(m, d)

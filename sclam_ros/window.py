@@ -312,17 +312,18 @@ class OnlineCalibrator:
         chained on from there. The window moves by a keyframe or two between solves, so
         LM starts next to its optimum (measured: ~9 iterations from chained scan matches
         per solve, see bench/node_latency.py, against 2-3 warm)."""
-        chained = graph_mod.initial_poses(inputs, self.calibration)
         known = [n for n, kf in enumerate(keyframes) if kf.index in self._solved_poses]
         if not known or known != list(range(len(known))):
-            return chained
+            return graph_mod.initial_poses(inputs, self.calibration)
         last = known[-1]
-        poses = chained.copy()
+        poses = np.empty((len(keyframes), 3))
         poses[: last + 1] = [self._solved_poses[kf.index] for kf in keyframes[: last + 1]]
-        # The rigid motion taking the chain onto the solved poses at the last known one.
-        align = se2.compose(poses[last], se2.inverse(chained[last]))
-        poses[last + 1:] = se2.compose(np.broadcast_to(align, chained[last + 1:].shape),
-                                       chained[last + 1:])
+        if last + 1 < len(keyframes):
+            # Only the new keyframes are chained, from the last solved one (chaining the
+            # whole window was half the time of preparing a solve).
+            tail = graph_mod.initial_poses(graph_mod.GraphInputs.from_keyframes(keyframes[last:]),
+                                           self.calibration)
+            poses[last + 1:] = se2.compose(np.broadcast_to(poses[last], tail[1:].shape), tail[1:])
         return poses
 
     def marginalise(self, leaving, calibration) -> Optional[Gaussian]:
