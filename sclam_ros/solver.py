@@ -2,7 +2,9 @@
 
 The solver never special-cases a factor: it linearises every factor, whitens with the
 factor's square-root information, applies the factor type's robust kernel as IRLS weights,
-stacks one sparse Jacobian, and solves (H + λ·diag(H)) Δ = −g with a sparse LU. The
+stacks one Jacobian (sparse; dense for small problems such as the online window), and
+solves (H + λ·diag(H)) Δ = −g (LinearSolver: banded Cholesky with a Schur complement for
+the global columns, a sparse LU when the band is wide, one dense Cholesky when small). The
 update y ← y ⊕ Δ is additive with angles wrapped, matching factors.py's Jacobians.
 
 Gauge: scan matching and odometry only constrain relative motion, so the first pose is
@@ -134,10 +136,9 @@ class Layout:
         return offset + np.arange(len(rows) * self.dims[name])
 
 
-# Up to this many columns the linear system is dense: the online window (~45-75 poses,
-# 141-231 columns) built as a sparse matrix spent ~1.5 ms of Python per linearisation in
-# scipy.sparse's constructors and another ~1 ms per damped solve, against tens of µs for
-# the same dense BLAS work (bench/node_latency.py --components).
+# Up to this many columns the linear system is dense: built as sparse matrices, the online
+# window (~45-75 poses, 141-231 columns) spent ~3 ms of its ~10 ms solve in scipy.sparse's
+# constructors and conversions (cProfile), more than the dense BLAS work costs.
 DENSE_MAX_COLUMNS = 400
 
 
