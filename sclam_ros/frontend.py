@@ -84,10 +84,14 @@ class Frontend:
         )
         self._previous = None  # last SyncedScan
         self._count = 0
-        self.registered = 0  # scans given to the matcher (its scan numbers)
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
+
+    @property
+    def registered(self) -> int:
+        """Scans given to the matcher so far (a registration's number is the matcher's)."""
+        return self.matcher.next_index
 
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list:
         return [self._keyframe(s) for s in self.sync.add_encoder(stamp, left_raw, right_raw)]
@@ -115,7 +119,6 @@ class Frontend:
             base_motion = kinematics.forward(angles.angles - last.angles, self.calibration[:3])
             guess = laser_motion_from_base_motion(base_motion, self.calibration[3:])
         registration = _Registration(scan, self.registered)
-        self.registered += 1
         scan = thinned(scan, self.params.scan_max_beams)
         config = self.matcher.config
         points = scan_to_points(scan, config.min_range, config.max_range)
