@@ -21,8 +21,8 @@ setup(
     license="LGPL-3.0-or-later",
     entry_points={
         "console_scripts": [
-            "sclam = sclam_ros.cli:main",
-            "sclam_node = sclam_ros.node:main",
+            "sclam = sclam_ros.cli.main:main",
+            "sclam_node = sclam_ros.ros.node:main",
         ],
     },
 )

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sclam_ros import censi
+from sclam_ros.io import censi
 
 NAMES = ("r_l [mm]", "r_r [mm]", "b [mm]", "l_x [mm]", "l_y [mm]", "l_yaw [deg]")
 SCALE = np.array([1e3, 1e3, 1e3, 1e3, 1e3, 180 / np.pi])

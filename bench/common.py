@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sclam_ros.estimator import calibrate_keyframes
-from sclam_ros.offline import read_recording
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.core.estimator import calibrate_keyframes
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 
 

@@ -10,7 +10,7 @@ import argparse
 import numpy as np
 from common import errors, simulate_and_calibrate, table
 
-from sclam_ros.params import CALIBRATION_KEYS
+from sclam_ros.core.params import CALIBRATION_KEYS
 
 
 def main():

@@ -26,9 +26,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import table  # noqa: E402
 
-from sclam_ros.commands.calibrate import track  # noqa: E402
-from sclam_ros.offline import read_ground_truth  # noqa: E402
-from sclam_ros.params import SclamParams  # noqa: E402
+from sclam_ros.cli.calibrate import track  # noqa: E402
+from sclam_ros.io.recording import read_ground_truth  # noqa: E402
+from sclam_ros.core.params import SclamParams  # noqa: E402
 from sclam_ros.sim import simulate  # noqa: E402
 from sclam_ros.sim.sensors import DEFAULT_SLIP_NOISE  # noqa: E402
 

@@ -10,9 +10,9 @@ breezyslam-mines exp1/exp2: converted as logged and with each scan stamped 50–
 before its log line (convert_breezyslam(scan_delay=...): the ticks keep their stamps and
 are interpolated at the scan's); per variant the calibration (± σ) and `sclam diagnose`
 (default candidate effects, 5-fold time-block held-out NLL). Cross-run: base and extended models
-fitted on one run, scored on the other (sclam_ros.cross_run, the metric of
+fitted on one run, scored on the other (sclam_ros.diagnosis.cross_run, the metric of
 `sclam diagnose --predict`), as logged and with the delay chosen on the fitted run.
-optiodom-diff: per run, the mocap calibration (sclam_ros.mocap) with and without the
+optiodom-diff: per run, the mocap calibration (sclam_ros.core.mocap) with and without the
 library's time_offset in the graph; open-loop check: dead reckoning over 5 s windows of
 every run with nominal k, the run's own k, k of the run's other half (2-fold time blocks),
 another run's k and the mean k of the other runs, against motion capture; the tick/mocap lag that minimises the open-loop
@@ -25,16 +25,22 @@ from pathlib import Path
 
 import numpy as np
 
-from sclam_ros import cross_run, mocap
-from sclam_ros.convert import (MINES_TICKS_PER_REV, convert_breezyslam, optiodom_params,
-                               read_breezyslam, read_optiodom)
-from sclam_ros.diagnose import diagnose_keyframes, write_diagnosis_report
-from sclam_ros.effects import LIBRARY, EffectData
-from sclam_ros.effects.model import extend_problem
-from sclam_ros.estimator import calibrate_keyframes
-from sclam_ros.offline import read_recording
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
-from sclam_ros.solver import marginal_covariance, solve_with_variance_components
+from sclam_ros.diagnosis import cross_run
+from sclam_ros.core import mocap
+from sclam_ros.io.convert import (
+    MINES_TICKS_PER_REV,
+    convert_breezyslam,
+    optiodom_params,
+    read_breezyslam,
+    read_optiodom,
+)
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes, write_diagnosis_report
+from sclam_ros.diagnosis.effects import LIBRARY, EffectData
+from sclam_ros.diagnosis.effects.model import extend_problem
+from sclam_ros.core.estimator import calibrate_keyframes
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.core.solver import marginal_covariance, solve_with_variance_components
 
 ROOT = Path(__file__).resolve().parents[1]
 WHEELS = CALIBRATION_KEYS[:3]

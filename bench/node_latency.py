@@ -3,7 +3,7 @@
 Latency: a simulated recording is replayed in real time through sclam_node's own
 callbacks (SclamNode._on_joint_state / _on_scan, message conversion and publishing
 included, no DDS transport), on one thread as rclpy's single-threaded executor runs them,
-while the node's window-solver thread (sclam_ros/solver_thread.py) runs beside it, as in
+while the node's window-solver thread (sclam_ros/online/solver_thread.py) runs beside it, as in
 the running node. Each message is handed over at its record time (or as soon as the
 previous callback is done, if that is later: the wait counts as latency), so GIL and
 core sharing between callbacks and solver are in the numbers. Measured, in wall time:
@@ -58,10 +58,10 @@ class ComponentTimer:
     wrapped for the run, and the garbage collector's passes are timed by generation."""
 
     PIECES = (  # (module, attribute path, name in the table)
-        ("sclam_ros.frontend", "Frontend._register", "scan registration (matcher + point-to-line)"),
-        ("sclam_ros.window", "OnlineCalibrator.prepare_solve", "solve: build the problem (under the lock)"),
-        ("sclam_ros.solver_thread", "run_solve", "solve: LM + covariance"),
-        ("sclam_ros.window", "OnlineCalibrator.marginalise_chunks", "marginalise leaving keyframes"),
+        ("sclam_ros.frontend.pipeline", "Frontend._register", "scan registration (matcher + point-to-line)"),
+        ("sclam_ros.online.window", "OnlineCalibrator.prepare_solve", "solve: build the problem (under the lock)"),
+        ("sclam_ros.online.solver_thread", "run_solve", "solve: LM + covariance"),
+        ("sclam_ros.online.window", "OnlineCalibrator.marginalise_chunks", "marginalise leaving keyframes"),
     )
 
     def __init__(self):
@@ -119,10 +119,10 @@ def replay_through_node(bag, params_file, scan_max_beams=None, timer=None):
     ComponentTimer, its pieces are timed during the replay."""
     import rclpy
 
-    from sclam_ros.bag import iter_messages, topic_info
-    from sclam_ros.commands.play import rclpy_class, rosbags_to_rclpy
-    from sclam_ros.node import SclamNode
-    from sclam_ros.params import SclamParams
+    from sclam_ros.io.bag import iter_messages, topic_info
+    from sclam_ros.ros.player import rclpy_class, rosbags_to_rclpy
+    from sclam_ros.ros.node import SclamNode
+    from sclam_ros.core.params import SclamParams
 
     params = SclamParams.from_yaml(params_file)
     if scan_max_beams is not None:
@@ -205,10 +205,10 @@ def latencies(records, published):
 
 
 def memory_run(hours, workdir, scan_rate, beams, encoder_rate):
-    from sclam_ros.offline import iter_keyframes
-    from sclam_ros.params import SclamParams
+    from sclam_ros.io.recording import iter_keyframes
+    from sclam_ros.core.params import SclamParams
     from sclam_ros.sim import simulate
-    from sclam_ros.window import OnlineCalibrator
+    from sclam_ros.online.window import OnlineCalibrator
 
     bag = workdir / "memory"
     simulate(bag, robot="powerbot", duration=hours * 3600.0, seed=2, scan_rate=scan_rate,

@@ -3,7 +3,7 @@
     .venv/bin/python bench/optiodom_repeatability.py [DATA_DIR] [--step N]
 
 DATA_DIR defaults to ../shared/data/optiodom-diff beside the repository. Each run is
-calibrated on its own (sclam_ros.mocap: the mocap marker as a pose sensor with an unknown
+calibrated on its own (sclam_ros.core.mocap: the mocap marker as a pose sensor with an unknown
 mount); the table gives r_l, r_r, b ± σ per run and the mean and standard deviation over
 runs (repeatability), against the nominal 42 mm / 42 mm / 200 mm.
 """
@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sclam_ros.convert import optiodom_params, read_optiodom
-from sclam_ros.mocap import calibrate_with_ground_truth
+from sclam_ros.io.convert import optiodom_params, read_optiodom
+from sclam_ros.core.mocap import calibrate_with_ground_truth
 
 
 def main(argv):

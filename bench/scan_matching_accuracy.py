@@ -7,7 +7,7 @@ scan timing is a separate effect, see sclam_ros.sim.effects.ScanMotion). The odo
 handed to the matcher is the true base motion distorted like a miscalibrated robot's
 (translation +2 %, rotation −3 %, mount yaw off by 2°), so the guess is realistic, not perfect.
 
-The error of one match is e = z ⊖ z_true (sclam_ros.se2.between), z_true = L_j ⊖ L_i with
+The error of one match is e = z ⊖ z_true (sclam_ros.core.se2.between), z_true = L_j ⊖ L_i with
 L = X ⊕ l the true laser poses.
 
 z is what the frontend hands the graph: KISS-ICP, then the point-to-line refinement
@@ -34,10 +34,10 @@ import time
 
 import numpy as np
 
-from sclam_ros import se2
-from sclam_ros.inputs import Scan
-from sclam_ros.point_to_line import RefinedScanMatcher
-from sclam_ros.scan_matching import (
+from sclam_ros.core import se2
+from sclam_ros.core.inputs import Scan
+from sclam_ros.frontend.point_to_line import RefinedScanMatcher
+from sclam_ros.frontend.scan_matching import (
     NoiseModel,
     ScanMatcher,
     ScanMatcherConfig,

@@ -20,9 +20,9 @@ from common import table
 CHILD = r"""
 import json, sys, time, resource
 sys.path.insert(0, {bench!r})
-from sclam_ros.params import SclamParams
-from sclam_ros.offline import read_recording
-from sclam_ros.estimator import calibrate_keyframes
+from sclam_ros.core.params import SclamParams
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.estimator import calibrate_keyframes
 path = {path!r}
 params = SclamParams.from_yaml(path + "/params.yaml")
 t0 = time.perf_counter()

@@ -5,7 +5,7 @@ within its reported σ of the truth.
 """
 import numpy as np
 
-from sclam_ros import kinematics, se2
+from sclam_ros.core import kinematics, se2
 
 
 def wheel_increments(n, rng, speed=0.4, dt=0.1, radius=0.125, base=0.56):

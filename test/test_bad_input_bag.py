@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from sclam_ros import bag
-from sclam_ros.estimator import calibrate_keyframes
-from sclam_ros.inputs import Scan
-from sclam_ros.offline import read_recording
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.io import bag
+from sclam_ros.core.estimator import calibrate_keyframes
+from sclam_ros.core.inputs import Scan
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 
 WRAP = 65536.0
@@ -98,7 +98,7 @@ def test_standing_still_is_a_clear_error_not_a_nan(tmp_path):
 def test_straight_line_only_flags_what_it_cannot_see(tmp_path):
     """Driving straight down a corridor excites no rotation: the wheel base and the laser
     offset are not observable and must come back at nominal, flagged, finite."""
-    from sclam_ros import se2
+    from sclam_ros.core import se2
     from sclam_ros.sim.world import office_world
 
     world = office_world()

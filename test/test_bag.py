@@ -4,8 +4,8 @@ import shutil
 import numpy as np
 import pytest
 
-from sclam_ros.bag import BagError, BagWriter, duration_s, iter_messages, open_reader, topic_info
-from sclam_ros.inputs import Scan
+from sclam_ros.io.bag import BagError, BagWriter, duration_s, iter_messages, open_reader, topic_info
+from sclam_ros.core.inputs import Scan
 
 T0 = 1_700_000_000.0
 

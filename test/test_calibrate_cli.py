@@ -6,8 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from sclam_ros.cli import main
-from sclam_ros.params import CALIBRATION_KEYS
+from sclam_ros.cli.main import main
+from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.sim import simulate
 
 
@@ -42,7 +42,7 @@ def test_calibrate_recovers_truth_within_sigma(recording, tmp_path, capsys):
 def test_console_script_runs_and_writes_report(recording, tmp_path):
     bag, _ = recording
     proc = subprocess.run(
-        [sys.executable, "-m", "sclam_ros.cli", "calibrate", str(bag), "--params",
+        [sys.executable, "-m", "sclam_ros.cli.main", "calibrate", str(bag), "--params",
          str(bag / "params.yaml"), "--report", str(tmp_path), "--quiet"],
         capture_output=True, text=True, timeout=300,
     )

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sclam_ros import censi
+from sclam_ros.io import censi
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "censi-khepera-tuples"
 

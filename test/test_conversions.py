@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from sclam_ros.conversions import MessageRejected, joint_state_to_raw, laser_scan_to_scan, stamp_to_sec
-from sclam_ros.params import SclamParams
+from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan, stamp_to_sec
+from sclam_ros.core.params import SclamParams
 
 TS = get_typestore(Stores.ROS2_JAZZY)
 Time = TS.types["builtin_interfaces/msg/Time"]

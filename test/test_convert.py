@@ -5,10 +5,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sclam_ros import bag, cli, kinematics, se2
-from sclam_ros.convert import (OPTIODOM_TICKS_PER_REV, URG_BEAMS, ConvertError,
-                               convert_optiodom, read_optiodom)
-from sclam_ros.params import SclamParams
+from sclam_ros.io import bag
+from sclam_ros.cli import main as cli
+from sclam_ros.core import kinematics, se2
+from sclam_ros.io.convert import (
+    OPTIODOM_TICKS_PER_REV,
+    URG_BEAMS,
+    ConvertError,
+    convert_optiodom,
+    read_optiodom,
+)
+from sclam_ros.core.params import SclamParams
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 MINES = DATA / "breezyslam-mines" / "exp1.dat"

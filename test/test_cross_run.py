@@ -1,13 +1,14 @@
-"""Cross-run prediction (sclam_ros.cross_run, `sclam diagnose --predict`) on short simulated
+"""Cross-run prediction (sclam_ros.diagnosis.cross_run, `sclam diagnose --predict`) on short simulated
 recordings of one robot: a clock offset fitted on one drive corrects another drive that has
 the same offset, and only that one."""
 import json
 
 import pytest
 
-from sclam_ros import cli, cross_run
-from sclam_ros.offline import read_recording
-from sclam_ros.params import SclamParams
+from sclam_ros.cli import main as cli
+from sclam_ros.diagnosis import cross_run
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import SclamParams
 from sclam_ros.sim.record import simulate
 
 DURATION = 40.0

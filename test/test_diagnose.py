@@ -4,10 +4,10 @@ import json
 
 import pytest
 
-from sclam_ros import cli
-from sclam_ros.diagnose import diagnose_keyframes
-from sclam_ros.offline import read_recording
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.cli import main as cli
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim.record import simulate
 
 DURATION = 90.0

@@ -22,9 +22,9 @@ Magnitudes, and why the runs are as long as they are:
 import numpy as np
 import pytest
 
-from sclam_ros.diagnose import diagnose_keyframes
-from sclam_ros.offline import read_ground_truth, read_recording
-from sclam_ros.params import SclamParams
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes
+from sclam_ros.io.recording import read_ground_truth, read_recording
+from sclam_ros.core.params import SclamParams
 from sclam_ros.sim.record import simulate
 
 SEED = 1

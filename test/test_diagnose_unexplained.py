@@ -11,9 +11,9 @@ penalty), most are negative.
 """
 import pytest
 
-from sclam_ros.diagnose import diagnose_keyframes
-from sclam_ros.offline import read_recording
-from sclam_ros.params import SclamParams
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import SclamParams
 from sclam_ros.sim.record import simulate
 
 FOLDS = 3

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from numdiff import check_factor_jacobians
 
-from sclam_ros import kinematics, se2
-from sclam_ros.effects import LIBRARY, EffectData
-from sclam_ros.effects.model import EffectLaserFactor, EffectOdometryFactor
-from sclam_ros.factors import LaserFactor, OdometryFactor
-from sclam_ros.solver import Values
+from sclam_ros.core import kinematics, se2
+from sclam_ros.diagnosis.effects import LIBRARY, EffectData
+from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor
+from sclam_ros.core.factors import LaserFactor, OdometryFactor
+from sclam_ros.core.solver import Values
 
 rng = np.random.default_rng(7)
 N = 6
@@ -88,8 +88,8 @@ def test_zero_effects_reduce_to_base_factors(merged):
 
 
 def test_extend_problem_keeps_the_parts():
-    from sclam_ros.effects.model import extend_problem
-    from sclam_ros.solver import Problem
+    from sclam_ros.diagnosis.effects.model import extend_problem
+    from sclam_ros.core.solver import Problem
 
     d = data()
     effects = [LIBRARY["time_offset"](d)]
@@ -130,7 +130,7 @@ def test_scan_distortion_corrects_a_turn_rate_change():
 
 
 def test_turn_rates_from_scan_matches():
-    from sclam_ros.frontend import Keyframe
+    from sclam_ros.frontend.pipeline import Keyframe
 
     t = np.arange(0, 2, 0.1)
     kfs = [Keyframe(i, s, np.zeros(2)) for i, s in enumerate(t)]
@@ -145,7 +145,7 @@ def test_turn_rates_from_scan_matches():
 def test_floor_noise_recovers_region_factors():
     """Synthetic disagreements with four times the odometry variance where x > median:
     the regions split at the medians (equal counts), the factors' ratio comes back."""
-    from sclam_ros.diagnose import Disagreement
+    from sclam_ros.diagnosis.diagnose import Disagreement
 
     m = 4000
     local = np.random.default_rng(3)
@@ -164,7 +164,7 @@ def test_floor_noise_recovers_region_factors():
 
 
 def test_wheel_speeds_from_keyframes():
-    from sclam_ros.frontend import Keyframe
+    from sclam_ros.frontend.pipeline import Keyframe
 
     t = np.arange(0, 2, 0.1)
     kfs = [Keyframe(i, s, np.array([3.0 * s, -2.0 * s])) for i, s in enumerate(t)]

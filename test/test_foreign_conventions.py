@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from sclam_ros import bag
-from sclam_ros.estimator import calibrate_keyframes
-from sclam_ros.inputs import Scan
-from sclam_ros.offline import read_recording
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.io import bag
+from sclam_ros.core.estimator import calibrate_keyframes
+from sclam_ros.core.inputs import Scan
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 
 

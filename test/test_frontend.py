@@ -8,12 +8,12 @@ after an early registration must not leave edges to keyframes that do not exist.
 import numpy as np
 import pytest
 
-from sclam_ros import bag
-from sclam_ros.conversions import joint_state_to_raw, laser_scan_to_scan
-from sclam_ros.frontend import Frontend
-from sclam_ros.inputs import Scan
-from sclam_ros.params import SclamParams
-from sclam_ros.scan_matching import scan_to_points, thinned
+from sclam_ros.io import bag
+from sclam_ros.io.messages import joint_state_to_raw, laser_scan_to_scan
+from sclam_ros.frontend.pipeline import Frontend
+from sclam_ros.core.inputs import Scan
+from sclam_ros.core.params import SclamParams
+from sclam_ros.frontend.scan_matching import scan_to_points, thinned
 from sclam_ros.sim import simulate
 
 

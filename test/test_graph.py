@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from sclam_ros import se2
-from sclam_ros.frontend import Keyframe
-from sclam_ros.graph import SCAN_MATCH_LAG1_CORRELATION, chained_scan_match_covariance, merge_keyframes
+from sclam_ros.core import se2
+from sclam_ros.frontend.pipeline import Keyframe
+from sclam_ros.core.graph import SCAN_MATCH_LAG1_CORRELATION, chained_scan_match_covariance, merge_keyframes
 
 
 def chain(n, rng, broken=()):

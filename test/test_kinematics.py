@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from numdiff import central_difference
 
-from sclam_ros import kinematics, se2
+from sclam_ros.core import kinematics, se2
 
 K = np.array([0.1263, 0.1275, 0.5825])
 

@@ -4,9 +4,13 @@ import numpy as np
 import pytest
 
 from numdiff import check_factor_jacobians
-from sclam_ros.marginal import (CalibrationPriorFactor, Gaussian, gaussian_of_prior,
-                                radius_change_statistic)
-from sclam_ros.solver import Values
+from sclam_ros.core.marginal import (
+    CalibrationPriorFactor,
+    Gaussian,
+    gaussian_of_prior,
+    radius_change_statistic,
+)
+from sclam_ros.core.solver import Values
 
 TRUE = np.array([0.1, 0.101, 0.4, 0.2, -0.05, 0.1])
 

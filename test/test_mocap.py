@@ -4,9 +4,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sclam_ros import kinematics, mocap, se2
-from sclam_ros.convert import optiodom_params, read_optiodom
-from sclam_ros.params import SclamParams
+from sclam_ros.core import kinematics, mocap, se2
+from sclam_ros.io.convert import optiodom_params, read_optiodom
+from sclam_ros.core.params import SclamParams
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "optiodom-diff"
 

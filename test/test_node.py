@@ -36,10 +36,10 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 import polling  # noqa: E402
-from sclam_ros.bag import iter_messages, topic_info  # noqa: E402
-from sclam_ros.commands.play import rclpy_class, rosbags_to_rclpy  # noqa: E402
-from sclam_ros.node import OdometryIntegrator, SclamNode  # noqa: E402
-from sclam_ros.params import SclamParams  # noqa: E402
+from sclam_ros.io.bag import iter_messages, topic_info  # noqa: E402
+from sclam_ros.ros.player import rclpy_class, rosbags_to_rclpy  # noqa: E402
+from sclam_ros.ros.node import OdometryIntegrator, SclamNode  # noqa: E402
+from sclam_ros.core.params import SclamParams  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent

@@ -7,13 +7,13 @@ import csv
 import numpy as np
 import pytest
 
-from sclam_ros.cli import main
-from sclam_ros.graph import merge_keyframes
-from sclam_ros.offline import read_recording
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.cli.main import main
+from sclam_ros.core.graph import merge_keyframes
+from sclam_ros.io.recording import read_recording
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
-from sclam_ros.offline import iter_keyframes
-from sclam_ros.window import POSE_WINDOW_DISTANCE, KeyframeMerger, OnlineCalibrator
+from sclam_ros.io.recording import iter_keyframes
+from sclam_ros.online.window import POSE_WINDOW_DISTANCE, KeyframeMerger, OnlineCalibrator
 
 DURATION = 200.0
 CHANGE_AT = 100.0  # s after the start

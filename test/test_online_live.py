@@ -27,9 +27,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
 import polling  # noqa: E402
-from sclam_ros.bag import topic_info  # noqa: E402
-from sclam_ros.cli import main  # noqa: E402
-from sclam_ros.params import ODOMETRY_KEYS  # noqa: E402
+from sclam_ros.io.bag import topic_info  # noqa: E402
+from sclam_ros.cli.main import main  # noqa: E402
+from sclam_ros.core.params import ODOMETRY_KEYS  # noqa: E402
 from sclam_ros.sim import simulate  # noqa: E402
 
 VENV_BIN = Path(sys.executable).parent

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from sclam_ros import point_to_line, se2
+from sclam_ros.frontend import point_to_line
+from sclam_ros.core import se2
 from sclam_ros.sim.world import office_world
 
 ANGLES = -np.pi + 2 * np.pi / 360 * np.arange(360)

@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from sclam_ros import se2
-from sclam_ros.inputs import Rejections, Scan
-from sclam_ros.scan_matching import (
+from sclam_ros.core import se2
+from sclam_ros.core.inputs import Rejections, Scan
+from sclam_ros.frontend.scan_matching import (
     NoiseModel,
     ScanMatcher,
     ScanMatcherConfig,

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from numdiff import central_difference
 
-from sclam_ros import se2
+from sclam_ros.core import se2
 
 rng = np.random.default_rng(1)
 

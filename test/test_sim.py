@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-from sclam_ros import se2
-from sclam_ros.bag import iter_messages, topic_info
-from sclam_ros.commands import simulate as simulate_command
-from sclam_ros.params import CALIBRATION_KEYS, SclamParams
+from sclam_ros.core import se2
+from sclam_ros.io.bag import iter_messages, topic_info
+from sclam_ros.cli import simulate as simulate_command
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 from sclam_ros.sim.effects import EFFECTS, EffectSet, make_effect
 from sclam_ros.sim.motion import Trajectory, TrueKinematics, twist_increment

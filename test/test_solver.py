@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 from synthetic import make_graph
 
-from sclam_ros import factors, kinematics
-from sclam_ros.graph import GraphInputs, initial_poses
-from sclam_ros.solver import (
+from sclam_ros.core import factors, kinematics
+from sclam_ros.core.graph import GraphInputs, initial_poses
+from sclam_ros.core.solver import (
     CauchyKernel,
     Problem,
     Values,
@@ -151,7 +151,7 @@ def test_dense_and_sparse_linear_systems_agree(monkeypatch):
     """Small problems (the online window) are linearised into a dense Jacobian and solved
     by one dense Cholesky; large ones stay sparse (banded Cholesky + Schur). Both are the
     same mathematics: the same Jacobian, optimum and covariance to rounding."""
-    from sclam_ros import solver
+    from sclam_ros.core import solver
 
     g = make_graph(n=60, seed=5)
     problem = build_problem(g)
@@ -174,7 +174,7 @@ def test_dense_and_sparse_linear_systems_agree(monkeypatch):
 
 
 def test_residual_rms_from_the_solvers_system_is_the_rms_of_the_residuals():
-    from sclam_ros.estimator import residual_rms
+    from sclam_ros.core.estimator import residual_rms
 
     g = make_graph(n=60, seed=6)
     problem = build_problem(g)

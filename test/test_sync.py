@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from sclam_ros.inputs import Rejections, Scan
-from sclam_ros.sync import (
+from sclam_ros.core.inputs import Rejections, Scan
+from sclam_ros.frontend.sync import (
     EncoderStream,
     ScanSynchronizer,
     SyncConfig,

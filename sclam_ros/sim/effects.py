@@ -17,7 +17,7 @@ the seams of the simulated truth:
                                   the body position (x, y) at its start (floor noise)
 
 ``wheel_eccentricity``, ``speed_dependent_slip`` and ``floor_noise_region`` are *outside*
-the model library of sclam_ros.effects on purpose (floor_noise_region is close to the
+the model library of sclam_ros.diagnosis.effects on purpose (floor_noise_region is close to the
 library's floor_noise, the other two have no counterpart): they test that diagnose
 reports what it cannot explain instead of attributing it to a wrong effect.
 

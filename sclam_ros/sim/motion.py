@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sclam_ros import se2
+from sclam_ros.core import se2
 from sclam_ros.sim.effects import EffectSet
 
 

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sclam_ros import se2
-from sclam_ros.bag import BagError, BagWriter
-from sclam_ros.params import SclamParams, atomic_write_text
+from sclam_ros.core import se2
+from sclam_ros.io.bag import BagError, BagWriter
+from sclam_ros.core.params import SclamParams, atomic_write_text
 from sclam_ros.sim.effects import EffectSet
 from sclam_ros.sim.motion import TrueKinematics
 from sclam_ros.sim.robots import get_preset, true_calibration

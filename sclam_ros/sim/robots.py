@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from sclam_ros.params import CALIBRATION_KEYS
+from sclam_ros.core.params import CALIBRATION_KEYS
 
 
 @dataclass(frozen=True)

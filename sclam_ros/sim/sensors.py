@@ -5,8 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sclam_ros import se2
-from sclam_ros.inputs import Scan
+from sclam_ros.core import se2
+from sclam_ros.core.inputs import Scan
 from sclam_ros.sim.motion import Trajectory, TrueKinematics
 from sclam_ros.sim.world import World, cast_rays
 

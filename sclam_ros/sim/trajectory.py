@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sclam_ros import se2
+from sclam_ros.core import se2
 from sclam_ros.sim.motion import Trajectory, TrueKinematics, twist_increment
 from sclam_ros.sim.world import World
 

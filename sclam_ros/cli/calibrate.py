@@ -1,0 +1,161 @@
+"""``sclam calibrate BAG --params PARAMS.yaml``: the six calibration parameters of a recording.
+
+Reads wheel encoder ticks (sensor_msgs/JointState) and laser scans (sensor_msgs/LaserScan)
+from a rosbag2 (sqlite3 or mcap), registers consecutive scans with KISS-ICP, and estimates
+the wheel radii, the wheel base and the laser pose jointly with all robot poses in one
+graph. Prints estimate, 1σ, nominal and change; --json and --report write files.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+
+from sclam_ros.core.params import CALIBRATION_KEYS
+
+log = logging.getLogger("sclam")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", help="rosbag2 folder, or its .db3 / .mcap file")
+    parser.add_argument("--params", required=True, metavar="PARAMS.yaml",
+                        help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
+    parser.add_argument("--json", metavar="OUT.json", help="write the estimate and σ as JSON")
+    parser.add_argument("--report", metavar="DIR", help="write figures (trajectories, residuals) here")
+    parser.add_argument("--truth", metavar="truth.json",
+                        help="true values (e.g. from `sclam simulate`) to print beside the estimate")
+    parser.add_argument("--track", metavar="OUT.csv",
+                        help="instead of the batch solve, run the online calibrator of sclam_node "
+                             "(sliding window) over the recording as fast as it can and write its "
+                             "estimates over time: t (s, header stamp), the six parameters and "
+                             "sigma_<name> for each")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+    parser.add_argument("--verbose", action="store_true", help="log every solver iteration")
+
+
+def _human(key, value):
+    """Value in the unit a person reads: mm for lengths, degrees for the yaw (labelled)."""
+    return (math.degrees(value), "deg") if key == "laser_yaw" else (1000.0 * value, "mm")
+
+
+def format_table(result, truth=None) -> str:
+    header = f"{'parameter':<20}{'estimate':>12}{'1σ':>10}{'nominal':>12}{'change':>11}"
+    if truth:
+        header += f"{'truth':>12}{'error':>10}{'err/σ':>7}"
+    lines = [header + "  unit", "-" * len(header)]
+    for key in CALIBRATION_KEYS:
+        est, unit = _human(key, result.estimate[key])
+        sig, _ = _human(key, result.sigma[key])
+        nom, _ = _human(key, result.nominal[key])
+        row = f"{key:<20}{est:>12.3f}{sig:>10.3f}{nom:>12.3f}{est - nom:>+11.3f}"
+        if truth:
+            tru, _ = _human(key, truth[key])
+            row += f"{tru:>12.3f}{est - tru:>+10.3f}{(est - tru) / sig:>+7.1f}"
+        flag = "" if result.observable[key] else "  NOT OBSERVABLE from this motion"
+        lines.append(row + f"  {unit}{flag}")
+    return "\n".join(lines)
+
+
+TRACK_COLUMNS = ("t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEYS))
+
+
+def track(bag, params, progress=None):
+    """Feed a recording through the node's OnlineCalibrator in record order, as fast as it can.
+
+    Returns (rows, calibrator): one row per window solve, in TRACK_COLUMNS order.
+    """
+    from sclam_ros.io.recording import iter_outputs
+    from sclam_ros.online.window import OnlineCalibrator
+
+    calibrator = OnlineCalibrator(params)
+    rows = []
+
+    def record(estimate):
+        if estimate is not None:
+            rows.append([estimate.stamp, *(estimate.values[k] for k in CALIBRATION_KEYS),
+                         *(estimate.sigma[k] for k in CALIBRATION_KEYS)])
+
+    # The messages in record order through the same calls the node makes in its callbacks.
+    for estimate in iter_outputs(bag, params, calibrator, progress):
+        record(estimate)
+    # No flush at the end: the live node never sees an end either, so both stop at the
+    # same last estimate.
+    return rows, calibrator
+
+
+def write_track(path, rows) -> None:
+    from sclam_ros.core.params import atomic_write_text
+
+    lines = [",".join(TRACK_COLUMNS)]
+    lines += [f"{row[0]:.6f}," + ",".join(f"{v:.9g}" for v in row[1:]) for row in rows]
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _run_track(args, params, truth) -> int:
+    from types import SimpleNamespace
+
+    from sclam_ros.cli.progress import ProgressBar
+
+    rows, calibrator = track(args.bag, params, ProgressBar("online calibration", not args.quiet))
+    if calibrator.rejections.total():
+        log.warning("rejected input (counted, not used): %s", calibrator.rejections)
+    write_track(args.track, rows)
+    estimate = calibrator.estimate
+    if estimate is None:
+        print("sclam calibrate: error: the online calibrator produced no estimate (too little "
+              "motion, or no scans paired with encoder data)", file=sys.stderr)
+        return 2
+    print(f"online: {len(rows)} window solves, window {estimate.window_distance:.1f} m "
+          f"({estimate.keyframes_in_window} keyframes); last estimate at t = {estimate.stamp:.3f} s")
+    shown = SimpleNamespace(estimate=estimate.values, sigma=estimate.sigma,
+                            nominal=dict(zip(CALIBRATION_KEYS, map(float, calibrator.nominal))),
+                            observable={k: True for k in CALIBRATION_KEYS})
+    print(format_table(shown, truth))
+    print(f"track: {args.track}")
+    return 0
+
+
+def run(args) -> int:
+    from sclam_ros.io.bag import BagError
+    from sclam_ros.core.estimator import CalibrationError, calibrate_keyframes
+    from sclam_ros.io.recording import read_recording
+    from sclam_ros.core.params import ParamsError, SclamParams, atomic_write_text
+    from sclam_ros.cli.progress import ProgressBar
+
+    try:
+        params = SclamParams.from_yaml(args.params)
+        truth = json.loads(Path(args.truth).read_text()) if args.truth else None
+        if args.track:
+            return _run_track(args, params, truth)
+        recording = read_recording(args.bag, params,
+                                   progress=ProgressBar("reading + scan matching", not args.quiet))
+        if recording.rejections.total():
+            log.warning("rejected input (counted, not used): %s", recording.rejections)
+        if not args.quiet:
+            log.info("solving the graph: %d scans", len(recording.keyframes))
+        result = calibrate_keyframes(
+            recording.keyframes, params, recording.rejections,
+            progress=(lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost))
+            if args.verbose else None,
+        )
+    except (ParamsError, BagError, CalibrationError, FileNotFoundError, json.JSONDecodeError) as exc:
+        print(f"sclam calibrate: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{result.scans_used} scans over {result.duration_s:.1f} s; "
+          f"solver: {result.iterations} iterations, converged: {result.converged}")
+    print(format_table(result, truth))
+    if not all(result.observable.values()):
+        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks the "
+              "motion that excites them (turns in both directions for the wheel base and the "
+              "laser offset).")
+    if args.json:
+        atomic_write_text(args.json, json.dumps(result.as_json(), indent=2) + "\n")
+    if args.report:
+        from sclam_ros.io.report import write_calibration_report
+
+        figures = write_calibration_report(args.report, args.bag, result, params)
+        print("figures: " + ", ".join(str(f) for f in figures))
+    return 0

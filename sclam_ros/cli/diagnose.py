@@ -1,0 +1,102 @@
+"""``sclam diagnose BAG --params PARAMS.yaml --json OUT.json [--report DIR] [--predict OTHER_BAG]``:
+is the model enough?
+
+Calibrates the recording (the base model), tests its residuals for structure (whiteness,
+dependence on speed, turn rate, acceleration, time, distance, position, wheel angle),
+fits every effect of the library (sclam_ros/diagnosis/effects) jointly with the calibration, selects
+those that lower the error on held-out time blocks and pass a BIC check, refits with them
+and reports what is still unexplained. --report writes residual-vs-regressor figures,
+before and after. --predict scores another recording of the same robot with the base and
+extended models fitted on BAG (sclam_ros.diagnosis.cross_run): the error across runs, in
+``base.error_cross_run`` / ``extended.error_cross_run``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+
+log = logging.getLogger("sclam")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", help="rosbag2 folder, or its .db3 / .mcap file")
+    parser.add_argument("--params", required=True, metavar="PARAMS.yaml",
+                        help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
+    parser.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
+    parser.add_argument("--report", metavar="DIR", help="write residual figures (PNG) here")
+    from sclam_ros.diagnosis.diagnose import DEFAULT_CANDIDATES
+
+    parser.add_argument("--effects", metavar="NAME[,NAME...]",
+                        help=f"effects to try (default: {','.join(DEFAULT_CANDIDATES)})")
+    parser.add_argument("--folds", type=int, default=5, help="time blocks of the cross-validation")
+    parser.add_argument("--predict", metavar="OTHER_BAG",
+                        help="another recording of the same robot: fit on BAG, report the error on it")
+    parser.add_argument("--predict-params", metavar="PARAMS.yaml",
+                        help="parameters file for OTHER_BAG (default: --params)")
+    parser.add_argument("--quiet", action="store_true", help="no progress output")
+
+
+def format_summary(report) -> str:
+    lines = [f"held-out error: base {report['base']['error']:.4f}, "
+             f"extended {report['extended']['error']:.4f}"]
+    if "error_cross_run" in report["extended"]:
+        ext = report["extended"]
+        lines.append(f"cross-run error (fitted here, scored on the other recording, "
+                     f"{ext['cross_run_edges']} edges): base {report['base']['error_cross_run']:.4f}, "
+                     f"extended {ext['error_cross_run']:.4f} "
+                     f"(gain ± stderr {report['base']['error_cross_run'] - ext['error_cross_run']:+.4f} "
+                     f"± {ext['cross_run_gain_stderr']:.4f})")
+    for e in report["effects"]:
+        sigma = "" if e["sigma"] is None else f" ± {e['sigma']:.4g}"
+        lines.append(f"  {'SELECTED ' if e['selected'] else 'rejected '}{e['name']:<16}"
+                     f"{e['value']:.4g}{sigma} {e['evidence']['units']}  "
+                     f"(held-out gain {e['evidence']['heldout_gain_per_edge']:+.4f}/edge, "
+                     f"LR {e['evidence']['likelihood_ratio']:.1f} vs BIC {e['evidence']['bic_penalty']:.1f})")
+    if report["unexplained"]:
+        lines.append("unexplained structure:")
+        lines += [f"  {u['component']} vs {u['regressor']}: strength {u['strength']:.2f}"
+                  for u in report["unexplained"]]
+    else:
+        lines.append("no unexplained structure")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from sclam_ros.io.bag import BagError
+    from sclam_ros.diagnosis.cross_run import add_cross_run
+    from sclam_ros.diagnosis.diagnose import diagnose_keyframes, write_diagnosis_report
+    from sclam_ros.diagnosis.effects import LIBRARY
+    from sclam_ros.core.estimator import CalibrationError
+    from sclam_ros.io.recording import read_recording
+    from sclam_ros.core.params import ParamsError, SclamParams, atomic_write_text
+    from sclam_ros.cli.progress import ProgressBar
+
+    try:
+        names = [n.strip() for n in args.effects.split(",")] if args.effects else None
+        unknown = [n for n in names or [] if n not in LIBRARY]
+        if unknown:
+            raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(LIBRARY)}")
+        params = SclamParams.from_yaml(args.params)
+        recording = read_recording(args.bag, params,
+                                   progress=ProgressBar("reading + scan matching", not args.quiet))
+        diagnosis = diagnose_keyframes(recording.keyframes, params, names, folds=args.folds,
+                                       progress=None if args.quiet else log.info)
+        if args.predict:
+            other_params = SclamParams.from_yaml(args.predict_params or args.params)
+            other = read_recording(args.predict, other_params,
+                                   progress=ProgressBar("reading + scan matching (--predict)",
+                                                        not args.quiet))
+            add_cross_run(diagnosis.report, recording.keyframes, params, other.keyframes,
+                          other_params, args.predict)
+    except (ParamsError, BagError, CalibrationError, FileNotFoundError, ValueError) as exc:
+        print(f"sclam diagnose: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_summary(diagnosis.report))
+    if args.json:
+        atomic_write_text(args.json, json.dumps(diagnosis.report, indent=2) + "\n")
+    if args.report:
+        for path in write_diagnosis_report(args.report, diagnosis):
+            log.info("wrote %s", path)
+    return 0

@@ -1,0 +1,275 @@
+"""Build the calibration graph of a run of keyframes: variables, factors, gauge, priors.
+
+Shared by the batch calibrator and the online window, so both estimate exactly the same
+model.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from sclam_ros.core import factors, kinematics, se2
+from sclam_ros.core.keyframe import Keyframe
+from sclam_ros.core.params import CALIBRATION_KEYS
+from sclam_ros.core.solver import CauchyKernel, Problem, Values
+
+# Weak priors on the calibration at its nominal value. They carry no information a real
+# run would notice (σ far beyond any plausible mounting error), but they keep the system
+# well-posed when the motion cannot excite a parameter (driving straight only: no base,
+# no laser offset), so such a parameter comes back at nominal with σ ≈ its prior σ, which
+# the report then flags as "not observable", instead of a singular matrix.
+PRIOR_SIGMA_RELATIVE_ODOMETRY = 0.25  # × nominal radius / base
+PRIOR_SIGMA_LASER_XY = 2.0  # m
+PRIOR_SIGMA_LASER_YAW = np.pi / 2  # rad
+
+# Robust kernel for scan matches in whitened units: an ICP that slid along a corridor is
+# a gross outlier and must not drag the calibration. Cauchy (not Huber): its influence
+# decays for residuals far outside, measured on synthetic graphs (test_solver).
+LASER_KERNEL = CauchyKernel(3.0)
+
+
+def prior_sigmas(calibration) -> np.ndarray:
+    calibration = np.asarray(calibration, float)
+    return np.concatenate(
+        [
+            PRIOR_SIGMA_RELATIVE_ODOMETRY * np.abs(calibration[:3]),
+            [PRIOR_SIGMA_LASER_XY, PRIOR_SIGMA_LASER_XY, PRIOR_SIGMA_LASER_YAW],
+        ]
+    )
+
+
+def encoder_variance_floor(params) -> float:
+    """Per-wheel variance of an angle increment from tick quantisation alone (rad²).
+
+    An increment is the difference of two readings each uniformly off by up to one tick:
+    variance 2 · (tick²/12). Radian encoders get a 1e-4 rad floor.
+    """
+    tick = 2 * np.pi / params.ticks_per_revolution if params.ticks_per_revolution > 0 else 1e-4
+    return tick**2 / 6.0
+
+
+# Radii and base may not fall below this fraction of nominal: a step there is rejected.
+MIN_ODOMETRY_FRACTION = 0.1
+
+# Gate for trusting a scan match over the wheels when building the initial guess: generous
+# (a nominal calibration may be a few % off), but far below an ICP failure.
+INIT_GATE_M = 0.05
+INIT_GATE_RAD = 0.05
+INIT_GATE_RELATIVE = 0.2
+
+
+@dataclass
+class GraphInputs:
+    """Keyframes flattened into edge arrays."""
+
+    stamps: np.ndarray  # (n,)
+    odo_from: np.ndarray  # (m_o,)
+    odo_dphi: np.ndarray  # (m_o, 2)
+    laser_from: np.ndarray  # (m_l,)
+    laser_to: np.ndarray
+    laser_z: np.ndarray  # (m_l, 3)
+    laser_info: np.ndarray  # (m_l, 3, 3)
+    odo_parts: Optional[np.ndarray] = None  # (m_o, n, 2) per-scan increments, zero-padded
+
+    @classmethod
+    def from_keyframes(cls, keyframes, first_index=None):
+        first = keyframes[0].index if first_index is None else first_index
+        n = len(keyframes)
+        odo = [(kf.index - first - 1, kf.dphi) for kf in keyframes
+               if kf.dphi is not None and kf.index - first - 1 >= 0]
+        las = [(kf.laser_from - first, kf.index - first, kf.laser_motion, kf.laser_information)
+               for kf in keyframes
+               if kf.laser_motion is not None and kf.laser_from - first >= 0]
+        parts = None
+        if any(getattr(kf, "dphi_parts", None) is not None for kf in keyframes):
+            chunks = [kf.dphi_parts if getattr(kf, "dphi_parts", None) is not None else kf.dphi[None]
+                      for kf in keyframes if kf.dphi is not None and kf.index - first - 1 >= 0]
+            parts = np.zeros((len(chunks), max((len(c) for c in chunks), default=1), 2))
+            for row, chunk in enumerate(chunks):
+                parts[row, : len(chunk)] = chunk
+        return cls(
+            odo_parts=parts,
+            stamps=np.array([kf.stamp for kf in keyframes]),
+            odo_from=np.array([o[0] for o in odo], int),
+            odo_dphi=np.array([o[1] for o in odo], float).reshape(-1, 2),
+            laser_from=np.array([e[0] for e in las], int),
+            laser_to=np.array([e[1] for e in las], int),
+            laser_z=np.array([e[2] for e in las], float).reshape(-1, 3),
+            laser_info=np.array([e[3] for e in las], float).reshape(-1, 3, 3),
+        )
+
+    @property
+    def size(self) -> int:
+        return len(self.stamps)
+
+
+def merged_keyframe(segment, index):
+    """One keyframe standing for a run of consecutive ones (see merge_keyframes): wheel
+    increments kept per part (the odometry factor composes their arcs) and summed, chained
+    scan matches composed with their covariances added. The edge starts at keyframe
+    ``index − 1``."""
+    kf = Keyframe(index, segment[-1].stamp, segment[-1].wheel_angles)
+    if all(s.dphi is not None for s in segment):
+        kf.dphi_parts = np.array([s.dphi for s in segment])
+        kf.dphi = kf.dphi_parts.sum(axis=0)
+    if all(s.laser_motion is not None and s.laser_from == s.index - 1 for s in segment):
+        z = np.zeros(3)
+        for s in segment:
+            z = se2.compose(z, s.laser_motion)
+        parts = [np.linalg.inv(s.laser_information) for s in segment]
+        kf.laser_from, kf.laser_motion = index - 1, z
+        kf.laser_information = np.linalg.inv(chained_scan_match_covariance(parts))
+    return kf
+
+
+# Lag-1 correlation of consecutive scan-match errors: each scan's own error enters the
+# match before it and the match after it with opposite signs (−0.5 if that were all).
+# Measured −0.41 to −0.47 on the frontend's output (solver.sandwich_covariance); the
+# smaller magnitude is used so that the merged covariance errs on the large side.
+SCAN_MATCH_LAG1_CORRELATION = -0.4
+
+
+def chained_scan_match_covariance(parts) -> np.ndarray:
+    """Covariance of a chain of consecutive scan matches: Σ Cᵢ + ρ Σ (Cᵢ + Cᵢ₊₁).
+
+    Summing the parts as if independent overstates it: five 0.1 s matches composed into
+    one 0.5 s edge have 1.8 C, not 5 C, at ρ = −0.4 (the cross-covariance of neighbours
+    taken as ρ times their mean covariance; the rotation between their frames over one
+    edge is neglected). Over-stating it had made the online window's radii σ ~1.4× the
+    scatter they showed (bench/load_change.py) and its change test too weak.
+    """
+    total = np.sum(parts, axis=0)
+    for before, after in zip(parts[:-1], parts[1:]):
+        total = total + SCAN_MATCH_LAG1_CORRELATION * (before + after)
+    return total
+
+
+def merge_keyframes(keyframes, interval: float) -> list:
+    """Fewer, longer edges: consecutive keyframes merged into one per `interval` seconds.
+
+    Wheel increments add exactly and chained scan matches compose, so no measurement is
+    lost. Why: the wheel base is learned from rotation against wheel angles measured with
+    noise, and least squares with a noisy regressor is biased (regression dilution) by
+    ≈ Σ noise² / Σ signal² over the edges. Over an edge of length T the rotation signal
+    grows as T² and the wheel noise as T, so the bias falls as 1/T. Measured on a 10-minute
+    simulated PowerBot run: wheel-base bias +0.27 % with one edge per scan (0.1 s), +0.10 %
+    at 0.3 s, +0.05 % (0.7σ) at 0.5 s, with unchanged σ. The merged scan-match covariance
+    is the sum of the parts (their shared-scan errors cancel partly, which the sandwich σ
+    accounts for). A merged keyframe ends early where an edge is missing, so gaps stay gaps.
+    """
+    if interval <= 0 or len(keyframes) < 2:
+        return list(keyframes)
+    merged = [Keyframe(0, keyframes[0].stamp, keyframes[0].wheel_angles)]
+    segment = []  # keyframes since the last merged one, all chained
+
+    def flush():
+        merged.append(merged_keyframe(segment, len(merged)))
+        segment.clear()
+
+    for kf in keyframes[1:]:
+        complete = kf.dphi is not None and kf.laser_motion is not None and kf.laser_from == kf.index - 1
+        if segment and not complete:
+            flush()  # close the chained run before the broken edge
+        segment.append(kf)
+        if not complete or kf.stamp - merged[-1].stamp >= interval - 1e-9:
+            flush()
+    if segment:
+        flush()
+    return merged
+
+
+def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
+    """Initial poses: chained scan matches where they exist, wheel odometry elsewhere.
+
+    Scan matches do not depend on the wheel calibration, so a chain of them starts the
+    poses close to the optimum, where the problem is nearly linear; dead reckoning with
+    a wrong nominal wheel base accumulates heading error along the whole run, and the
+    first Gauss-Newton step from there overshoots (measured: cost ×45 on a 2000-pose
+    chain) and Levenberg-Marquardt then crawls.
+
+    A scan match that disagrees grossly with the wheels (an ICP failure the robust kernel
+    will later discount) is not trusted for the start; odometry is used there instead.
+    """
+    calibration = np.asarray(calibration, float)
+    k, mount = calibration[:3], calibration[3:]
+    motion = np.zeros((inputs.size, 3))
+    known = np.zeros(inputs.size, bool)
+    motion[inputs.odo_from + 1] = (kinematics.forward(inputs.odo_dphi, k) if inputs.odo_parts is None
+                                   else kinematics.forward_composed(inputs.odo_parts, k)[0])
+    known[inputs.odo_from + 1] = True
+    chained = inputs.laser_from == inputs.laser_to - 1
+    to = inputs.laser_to[chained]
+    # The base's motion from the laser's: l ∘ z ∘ l⁻¹.
+    from_laser = se2.compose(se2.compose(mount, inputs.laser_z[chained]), se2.inverse(mount))
+    disagreement = se2.between(from_laser, motion[to])
+    step = np.linalg.norm(motion[to, :2], axis=1)
+    plausible = ~known[to] | (
+        (np.linalg.norm(disagreement[:, :2], axis=1) < INIT_GATE_M + INIT_GATE_RELATIVE * step)
+        & (np.abs(disagreement[:, 2]) < INIT_GATE_RAD + INIT_GATE_RELATIVE * np.abs(motion[to, 2]))
+    )
+    motion[to[plausible]] = from_laser[plausible]
+    known[to] = True
+    return se2.chain(np.where(known[:, None], motion, 0.0))
+
+
+def gauge_anchors(inputs: GraphInputs) -> np.ndarray:
+    """First pose of every connected piece of the graph: those are held fixed.
+
+    Relative edges fix nothing absolute, so each piece (separated by a stretch with no
+    encoder and no scan match) needs one anchored pose.
+    """
+    linked = np.zeros(max(inputs.size - 1, 0), bool)  # pose i joined to pose i + 1
+    linked[inputs.odo_from] = True
+    linked[inputs.laser_from[inputs.laser_to == inputs.laser_from + 1]] = True
+    if linked.all():  # one unbroken chain, the usual case: no graph search needed
+        return np.zeros(1, int)
+    src = np.concatenate([inputs.odo_from, inputs.laser_from])
+    dst = np.concatenate([inputs.odo_from + 1, inputs.laser_to])
+    adjacency = coo_matrix((np.ones(len(src)), (src, dst)), shape=(inputs.size, inputs.size))
+    _, labels = connected_components(adjacency, directed=False)
+    _, first = np.unique(labels, return_index=True)
+    return np.sort(first)
+
+
+def build_problem(inputs: GraphInputs, params, calibration, poses=None,
+                  nominal=None, extra_factors=()) -> Problem:
+    """The SCLAM least-squares problem over poses, k = (r_l, r_r, b) and l = (x, y, yaw)."""
+    calibration = np.asarray(calibration, float)
+    nominal = calibration if nominal is None else np.asarray(nominal, float)
+    if poses is None:
+        poses = initial_poses(inputs, calibration)
+    values = Values(
+        {"poses": poses, "odometry": [calibration[:3]], "laser": [calibration[3:]]},
+        angular={"poses": [False, False, True], "laser": [False, False, True]},
+        # Radii and wheel base are physical lengths: the solver never steps through zero.
+        lower={"odometry": MIN_ODOMETRY_FRACTION * calibration[:3]},
+    )
+    odometry_covariance = kinematics.motion_covariance(
+        inputs.odo_dphi, nominal[:3], params.wheel_noise, encoder_variance_floor(params),
+        params.lateral_noise,
+    )
+    sigma = prior_sigmas(nominal)
+    factor_list = [
+        factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
+                               np.linalg.inv(odometry_covariance), parts=inputs.odo_parts),
+        factors.LaserFactor(inputs.laser_from, inputs.laser_to, inputs.laser_z, inputs.laser_info),
+        factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(sigma[:3] ** -2.0),
+                            angular=(False, False, False), name="calibration_prior"),
+        factors.PriorFactor("laser", [0], [nominal[3:]], np.diag(sigma[3:] ** -2.0),
+                            name="calibration_prior"),
+        *extra_factors,
+    ]
+    return Problem(values, factor_list, fixed={"poses": gauge_anchors(inputs)},
+                   kernels={"laser": LASER_KERNEL})
+
+
+def calibration_of(values: Values) -> np.ndarray:
+    return np.concatenate([values["odometry"][0], values["laser"][0]])
+
+
+def as_dict(vector) -> dict:
+    return {k: float(v) for k, v in zip(CALIBRATION_KEYS, vector)}

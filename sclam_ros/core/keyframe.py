@@ -1,0 +1,25 @@
+"""A keyframe: one pose node of the graph and the measurements that tie it to earlier ones.
+
+Made by the front end (frontend/pipeline.py), consumed by the graph builder and the online
+window; a plain data type so that the core never imports the front end.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+
+@dataclass
+class Keyframe:
+    """One node of the graph and the measurements that tie it to earlier nodes."""
+
+    index: int  # 0, 1, 2, ... in stamp order
+    stamp: float  # s
+    wheel_angles: np.ndarray  # (2,) rad, cumulative, at the scan stamp
+    dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
+    dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged
+    laser_from: Optional[int] = None  # keyframe index the scan match is relative to
+    laser_motion: Optional[np.ndarray] = None  # z: laser_j ⊖ laser_from, in that frame
+    laser_information: Optional[np.ndarray] = None  # (3, 3)

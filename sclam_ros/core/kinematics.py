@@ -1,0 +1,150 @@
+"""Differential-drive forward kinematics K(u, k) and its Jacobians.
+
+u = (dφ_l, dφ_r): wheel angle increments over one interval (rad). Using increments rather
+than speeds makes the model independent of the interval length: with constant wheel speeds
+over the interval, v·dt = (dφ_r r_r + dφ_l r_l)/2 and ω·dt = (dφ_r r_r − dφ_l r_l)/b.
+
+k = (r_l, r_r, b): wheel radii and wheel base (m).
+
+The motion is integrated exactly along the arc around the instantaneous centre of
+curvature: for a travelled arc length s and heading change θ,
+
+    K = (s·sin θ/θ,  s·(1 − cos θ)/θ,  θ),
+
+with a Taylor series near θ = 0 so the straight-line limit is smooth and exact to
+double precision.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# Below this |θ| the closed forms lose digits to cancellation; the series are exact to
+# ~1e-17 there (next terms are θ⁶/5040 and θ⁵/720).
+_SMALL_ANGLE = 1e-3
+
+
+def _arc_factors(theta):
+    """f1 = sin θ/θ, f2 = (1−cos θ)/θ and their derivatives, stable near 0."""
+    theta = np.asarray(theta, float)
+    small = np.abs(theta) < _SMALL_ANGLE
+    t = np.where(small, 1.0, theta)  # avoid 0/0 in the branch that is not used
+    t2 = theta * theta
+    s, c = np.sin(t), np.cos(t)
+    f1 = np.where(small, 1.0 - t2 / 6.0 + t2 * t2 / 120.0, s / t)
+    f2 = np.where(small, theta / 2.0 - theta * t2 / 24.0, (1.0 - c) / t)
+    df1 = np.where(small, -theta / 3.0 + theta * t2 / 30.0, (t * c - s) / (t * t))
+    df2 = np.where(small, 0.5 - t2 / 8.0, (t * s - (1.0 - c)) / (t * t))
+    return f1, f2, df1, df2
+
+
+def arc_length_and_rotation(dphi, k):
+    """Arc length s and heading change θ for increments dphi (..., 2) and k (3,) or (..., 3)."""
+    dphi = np.asarray(dphi, float)
+    k = np.asarray(k, float)
+    left = dphi[..., 0] * k[..., 0]
+    right = dphi[..., 1] * k[..., 1]
+    return 0.5 * (right + left), (right - left) / k[..., 2]
+
+
+def forward(dphi, k):
+    """K(u, k): the motion (dx, dy, dθ) in the frame of the start pose, shape (..., 3)."""
+    s, theta = arc_length_and_rotation(dphi, k)
+    f1, f2, _, _ = _arc_factors(theta)
+    return np.stack([s * f1, s * f2, theta], -1)
+
+
+def _jacobian_from_partials(s, theta, ds, dtheta):
+    """Chain rule through the arc: ∂K/∂p given ∂s/∂p and ∂θ/∂p, each (..., m)."""
+    f1, f2, df1, df2 = _arc_factors(theta)
+    jx = ds * f1[..., None] + (s * df1)[..., None] * dtheta
+    jy = ds * f2[..., None] + (s * df2)[..., None] * dtheta
+    return np.stack([jx, jy, dtheta], -2)
+
+
+def jacobian_k(dphi, k):
+    """∂K/∂k, shape (..., 3, 3): rows (dx, dy, dθ), columns (r_l, r_r, b)."""
+    dphi = np.asarray(dphi, float)
+    k = np.asarray(k, float)
+    s, theta = arc_length_and_rotation(dphi, k)
+    zero = np.zeros_like(s)
+    b = np.broadcast_to(k[..., 2], s.shape)
+    ds = np.stack([0.5 * dphi[..., 0], 0.5 * dphi[..., 1], zero], -1)
+    dtheta = np.stack([-dphi[..., 0] / b, dphi[..., 1] / b, -theta / b], -1)
+    return _jacobian_from_partials(s, theta, ds, dtheta)
+
+
+def jacobian_u(dphi, k):
+    """∂K/∂u, shape (..., 3, 2): columns (dφ_l, dφ_r). Used to propagate wheel noise."""
+    dphi = np.asarray(dphi, float)
+    k = np.asarray(k, float)
+    s, theta = arc_length_and_rotation(dphi, k)
+    r_l = np.broadcast_to(k[..., 0], s.shape)
+    r_r = np.broadcast_to(k[..., 1], s.shape)
+    b = np.broadcast_to(k[..., 2], s.shape)
+    ds = np.stack([0.5 * r_l, 0.5 * r_r], -1)
+    dtheta = np.stack([-r_l / b, r_r / b], -1)
+    return _jacobian_from_partials(s, theta, ds, dtheta)
+
+
+def forward_composed(parts, k):
+    """K over consecutive sub-intervals composed, K(u₁) ⊕ K(u₂) ⊕ ..., and ∂/∂k.
+
+    parts: (..., n, 2) wheel increments of the sub-intervals (zero rows are identity
+    motions, so ragged edges can be padded); k: (3,) or one per edge (..., 3). One arc
+    over a long edge assumes constant curvature; composing the per-scan arcs keeps the
+    model exact when the curvature changes within the edge (S-curves, accelerations).
+
+    In closed form rather than step by step (it is the hot loop of a window solve):
+    with θ̄ᵢ the heading before step i (the sum of the earlier steps' rotations),
+    translation = Σ R(θ̄ᵢ) tᵢ and rotation = Σ θᵢ, so
+    ∂translation/∂k = Σ R(θ̄ᵢ) ∂tᵢ/∂k + R'(θ̄ᵢ) tᵢ ∂θ̄ᵢ/∂k.
+    """
+    from sclam_ros.core import se2  # local: se2 does not depend on kinematics, but keep the layering visible
+
+    parts = np.asarray(parts, float)
+    k = np.asarray(k, float)
+    k_steps = k[..., None, :] if k.ndim > 1 else k
+    steps = forward(parts, k_steps)  # (..., n, 3)
+    d_steps = jacobian_k(parts, k_steps)  # (..., n, 3, 3)
+    theta = steps[..., 2]
+    before = np.cumsum(theta, axis=-1) - theta
+    d_before = np.cumsum(d_steps[..., 2, :], axis=-2) - d_steps[..., 2, :]  # (..., n, 3)
+    c, s = np.cos(before), np.sin(before)
+    x, y = steps[..., 0], steps[..., 1]
+    dx, dy = d_steps[..., 0, :], d_steps[..., 1, :]
+    motion = np.stack([np.sum(c * x - s * y, -1), np.sum(s * x + c * y, -1),
+                       se2.wrap_angle(np.sum(theta, -1))], -1)
+    jac = np.stack([
+        np.sum(c[..., None] * dx - s[..., None] * dy - (s * x + c * y)[..., None] * d_before, -2),
+        np.sum(s[..., None] * dx + c[..., None] * dy + (c * x - s * y)[..., None] * d_before, -2),
+        np.sum(d_steps[..., 2, :], -2),
+    ], -2)
+    return motion, jac
+
+
+def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0):
+    """Covariance (..., 3, 3) of K(u, k): wheel-angle noise plus sideways slip.
+
+    Each wheel's increment has variance wheel_noise² · |dφ| + floor (slip and backlash
+    accumulate with the angle turned, a random walk; the floor is the encoder's
+    quantisation). Wheel noise alone is rank 2: the model cannot move sideways. Real
+    tyres do slip sideways a little, so a lateral variance lateral_noise² · |s| (m² per m
+    travelled) makes the edge full rank, and keeps a robot standing still positive
+    definite.
+    """
+    dphi = np.asarray(dphi, float)
+    var = wheel_noise**2 * np.abs(dphi) + floor
+    ju = jacobian_u(dphi, k)
+    cov = np.einsum("...ij,...j,...kj->...ik", ju, var, ju)
+    s, _ = arc_length_and_rotation(dphi, k)
+    lateral = lateral_noise**2 * np.abs(s) + floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    cov[..., 1, 1] += lateral
+    cov[..., 0, 0] += floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    cov[..., 2, 2] += floor * (np.mean(np.asarray(k)[..., :2]) / np.asarray(k)[..., 2]) ** 2
+    return cov
+
+
+def wheel_speeds_to_twist(v_l, v_r, k):
+    """(v, ω) of the base from wheel angular speeds (rad/s): the continuous-time model."""
+    k = np.asarray(k, float)
+    return 0.5 * (v_r * k[1] + v_l * k[0]), (v_r * k[1] - v_l * k[0]) / k[2]

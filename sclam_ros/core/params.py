@@ -1,0 +1,266 @@
+"""The one typed home of every user-facing parameter.
+
+The node, the CLI and the YAML files in launch_configs/ all read this dataclass, so a
+name, a default, a unit or a validity rule is written down exactly once.
+
+A parameters file is a standard ROS 2 one::
+
+    sclam:                      # the node name (``/**`` also matches)
+      ros__parameters:
+        wheel_radius_left: 0.125
+        ...
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import yaml
+
+NODE_NAME = "sclam"
+
+# The calibration parameter names, in the order of the state vector (k then l).
+CALIBRATION_KEYS = (
+    "wheel_radius_left",
+    "wheel_radius_right",
+    "wheel_base",
+    "laser_x",
+    "laser_y",
+    "laser_yaw",
+)
+ODOMETRY_KEYS = CALIBRATION_KEYS[:3]
+LASER_KEYS = CALIBRATION_KEYS[3:]
+
+
+class ParamsError(ValueError):
+    """A parameter file or value that cannot be used; the message says which and why."""
+
+
+def _positive(name, value):
+    if not (math.isfinite(value) and value > 0):
+        return f"{name} must be a finite number > 0, got {value!r}"
+    return None
+
+
+def _finite(name, value):
+    if not math.isfinite(value):
+        return f"{name} must be finite, got {value!r}"
+    return None
+
+
+def _non_negative(name, value):
+    if not (math.isfinite(value) and value >= 0):
+        return f"{name} must be a finite number >= 0, got {value!r}"
+    return None
+
+
+def _non_empty(name, value):
+    if not value:
+        return f"{name} must not be empty"
+    return None
+
+
+def _param(default, doc, check=None, unit=""):
+    return field(default=default, metadata={"doc": doc, "check": check, "unit": unit})
+
+
+@dataclass
+class SclamParams:
+    """Parameters of ``sclam calibrate`` and ``sclam_node`` (SI units, radians)."""
+
+    # --- inputs -------------------------------------------------------------------
+    joint_states_topic: str = _param("/joint_states", "sensor_msgs/JointState topic", _non_empty)
+    scan_topic: str = _param("/scan", "sensor_msgs/LaserScan topic", _non_empty)
+    left_wheel_joint: str = _param("left_wheel_joint", "JointState name of the left wheel", _non_empty)
+    right_wheel_joint: str = _param("right_wheel_joint", "JointState name of the right wheel", _non_empty)
+    ticks_per_revolution: float = _param(
+        0.0,
+        "encoder ticks per wheel revolution; JointState positions are cumulative ticks. "
+        "0 means positions are wheel angles in radians",
+        _non_negative,
+    )
+    encoder_wrap: float = _param(
+        0.0,
+        "counter modulus of the encoder (e.g. 65536 for a 16-bit counter); 0 = no wrap-around "
+        "expected. Jumps larger than half of it are unwrapped",
+        _non_negative,
+        "ticks",
+    )
+    # --- nominal calibration (starting values) -------------------------------------
+    wheel_radius_left: float = _param(0.1, "left wheel radius", _positive, "m")
+    wheel_radius_right: float = _param(0.1, "right wheel radius", _positive, "m")
+    wheel_base: float = _param(0.5, "distance between the wheel contact points", _positive, "m")
+    laser_x: float = _param(0.0, "laser x on base_link", _finite, "m")
+    laser_y: float = _param(0.0, "laser y on base_link", _finite, "m")
+    laser_yaw: float = _param(0.0, "laser yaw on base_link", _finite, "rad")
+    # --- noise model ----------------------------------------------------------------
+    wheel_noise: float = _param(
+        0.02,
+        "1σ of a wheel's angle increment per sqrt(radian turned), the slip/backlash model "
+        "of the odometry edges; rescaled from the residuals after the fit",
+        _positive,
+        "rad/sqrt(rad)",
+    )
+    lateral_noise: float = _param(
+        0.002,
+        "1σ of sideways tyre slip per sqrt(metre travelled), which the wheel model cannot "
+        "express; keeps odometry edges full rank",
+        _positive,
+        "m/sqrt(m)",
+    )
+    keyframe_interval: float = _param(
+        0.5,
+        "graph edges span this long: consecutive scans are merged (wheel increments add, scan "
+        "matches compose). Long edges keep the regression-dilution bias of the wheel base "
+        "small (see graph.merge_keyframes); 0 = one keyframe per scan",
+        _non_negative,
+        "s",
+    )
+    # --- scan matching --------------------------------------------------------------
+    scan_voxel_size: float = _param(
+        0.05, "KISS-ICP voxel size for planar indoor scans", _positive, "m"
+    )
+    scan_max_beams: float = _param(
+        720,
+        "scans with more beams are thinned to every k-th beam (the smallest k leaving at "
+        "most this many) before scan matching: registration time grows with the beams, the "
+        "precision of a 0.5 s edge hardly does; 0 = match all beams",
+        _non_negative,
+        "beams",
+    )
+    # --- online estimation (sclam_node, sclam calibrate --track) --------------------
+    window_distance: float = _param(
+        100.0,
+        "distance travelled (mean of both wheels) that the sliding window of the wheel "
+        "radii spans; cut short when a change of the radii is detected",
+        _positive,
+        "m",
+    )
+    base_frame: str = _param("base_link", "robot base frame (REP-105)", _non_empty)
+    odom_frame: str = _param("odom", "odometry frame (REP-105)", _non_empty)
+
+    def validate(self) -> "SclamParams":
+        """Raise ParamsError listing every invalid value."""
+        problems = []
+        for f in fields(self):
+            check = f.metadata.get("check")
+            value = getattr(self, f.name)
+            if check is not None:
+                problem = check(f.name, value)
+                if problem:
+                    problems.append(problem)
+        if self.left_wheel_joint == self.right_wheel_joint:
+            problems.append("left_wheel_joint and right_wheel_joint must differ")
+        if problems:
+            raise ParamsError("invalid parameters:\n  " + "\n  ".join(problems))
+        return self
+
+    # --- calibration vector helpers --------------------------------------------------
+    def calibration(self) -> dict:
+        return {k: float(getattr(self, k)) for k in CALIBRATION_KEYS}
+
+    def with_calibration(self, values: dict) -> "SclamParams":
+        return dataclasses.replace(self, **{k: float(values[k]) for k in CALIBRATION_KEYS})
+
+    # --- YAML -----------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, raw: dict, source: str = "parameters") -> "SclamParams":
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(raw) - set(known))
+        if unknown:
+            raise ParamsError(
+                f"{source}: unknown parameter(s) {', '.join(unknown)}; "
+                f"known: {', '.join(sorted(known))}"
+            )
+        values = {}
+        for name, value in raw.items():
+            default = known[name].default
+            try:
+                if isinstance(default, str):
+                    if not isinstance(value, str):
+                        raise TypeError
+                    values[name] = value
+                else:
+                    if isinstance(value, bool):
+                        raise TypeError
+                    values[name] = float(value)
+            except (TypeError, ValueError):
+                raise ParamsError(
+                    f"{source}: {name} must be a {type(default).__name__}, got {value!r}"
+                ) from None
+        return cls(**values).validate()
+
+    @classmethod
+    def from_yaml(cls, path, node_name: str = NODE_NAME) -> "SclamParams":
+        path = Path(path)
+        try:
+            doc = yaml.safe_load(path.read_text())
+        except FileNotFoundError:
+            raise ParamsError(f"parameters file not found: {path}") from None
+        except yaml.YAMLError as exc:
+            raise ParamsError(f"{path}: not valid YAML: {exc}") from None
+        return cls.from_dict(ros_parameters_section(doc, node_name, str(path)), str(path))
+
+    def to_yaml_dict(self, node_name: str = NODE_NAME) -> dict:
+        return {node_name: {"ros__parameters": dataclasses.asdict(self)}}
+
+    def write_yaml(self, path, node_name: str = NODE_NAME, header: str = "") -> None:
+        text = header + yaml.safe_dump(self.to_yaml_dict(node_name), sort_keys=False)
+        atomic_write_text(path, text)
+
+
+def ros_parameters_section(doc, node_name: str, source: str) -> dict:
+    """The ``ros__parameters`` mapping for ``node_name`` in a ROS 2 parameters document."""
+    if not isinstance(doc, dict):
+        raise ParamsError(f"{source}: expected a mapping '{node_name}: ros__parameters: ...'")
+    merged = {}
+    # ROS 2 applies wildcard sections first and the node's own section last.
+    for key in ("/**", node_name, "/" + node_name):
+        section = doc.get(key)
+        if isinstance(section, dict) and isinstance(section.get("ros__parameters"), dict):
+            merged.update(section["ros__parameters"])
+    if not merged:
+        raise ParamsError(
+            f"{source}: no '{node_name}: ros__parameters:' (or '/**') section found; "
+            f"top-level keys are {sorted(doc)}"
+        )
+    return merged
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write ``text`` to ``path`` so that readers see the old file or the new one, never half."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        # mkstemp creates 0600; a calibration file is for everyone to read (umask decides).
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def check_parameter_value(name: str, value, default):
+    """None if ``value`` is usable for the SclamParams field ``name``, else the reason."""
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            return f"{name} must be a string, got {type(value).__name__}"
+    elif isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f"{name} must be a number, got {type(value).__name__} {value!r}"
+    field_ = {f.name: f for f in fields(SclamParams)}.get(name)
+    check = field_.metadata.get("check") if field_ is not None else None
+    if check is not None:
+        return check(name, float(value) if not isinstance(default, str) else value)
+    return None

@@ -1,0 +1,120 @@
+"""Point-to-line refinement of a scan match (2D), removing point-to-point ICP's scale bias.
+
+KISS-ICP registers points to points. On walls sampled by a fixed beam pattern, a point of
+the new scan is paired with the nearest *sample* of the old one, which sits where the old
+beam hit, so the registration is pulled back toward zero motion: measured on the simulator
+(PowerBot, 150 s, 1 cm range noise) scan-match translations were 0.8 % short, enough to
+bias the wheel radii and base by 3σ. Measuring the distance to the wall's *line* instead
+(normal · (q − p)) leaves the sliding along the wall free, and the bias goes away.
+
+The refinement starts from KISS-ICP's answer (robust, already close) and runs a few
+Gauss-Newton steps with a Huber weight against the previous scan's points and normals.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sclam_ros.core import se2
+
+NORMAL_NEIGHBOURS = 6
+MAX_PAIR_DISTANCE = 0.15  # m; KISS-ICP's answer is within a few cm
+HUBER = 0.02  # m; ~2σ of the range noise of a typical 2D lidar
+MAX_LINE_SPREAD = 0.02  # m RMS off the fitted line: beyond it the neighbourhood is a corner
+ITERATIONS = 15
+
+
+@dataclass
+class ReferenceScan:
+    """The points of a scan (laser frame) with a line normal at each, ready for pairing."""
+
+    points: np.ndarray  # (N, 2)
+    normals: np.ndarray  # (N, 2)
+    tree: cKDTree
+
+    @classmethod
+    def from_points(cls, points):
+        points = np.asarray(points, float)[:, :2]
+        if len(points) < NORMAL_NEIGHBOURS + 1:
+            return None
+        tree = cKDTree(points)
+        _, idx = tree.query(points, NORMAL_NEIGHBOURS)
+        nbr = points[idx]  # (N, k, 2)
+        dx, dy = np.moveaxis(nbr - nbr.mean(axis=1, keepdims=True), -1, 0)  # (N, k) each
+        # The 2×2 covariance of each neighbourhood and its eigen-decomposition in closed
+        # form (np.linalg.eigh on N small matrices was a quarter of this function's time).
+        cxx, cyy, cxy = (np.mean(dx * dx, 1), np.mean(dy * dy, 1), np.mean(dx * dy, 1))
+        half_sum, radius = 0.5 * (cxx + cyy), np.hypot(0.5 * (cxx - cyy), cxy)
+        smallest, largest = half_sum - radius, half_sum + radius
+        along = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of the largest spread
+        normals = np.column_stack([-np.sin(along), np.cos(along)])  # across the line
+        straight = np.sqrt(np.maximum(smallest, 0)) < MAX_LINE_SPREAD
+        spread_ok = largest > 0
+        keep = straight & spread_ok
+        if keep.sum() < 10:
+            return None
+        kept_points = points[keep]
+        return cls(kept_points, normals[keep], cKDTree(kept_points))
+
+
+class RefinedScanMatcher:
+    """A scan matcher (scan_matching.ScanMatcher) whose motions are refined point-to-line
+    against the scan they start from, when that is the last scan it accepted (it is, unless
+    the matcher restarted its map at a scan it could not match)."""
+
+    def __init__(self, matcher):
+        self.matcher = matcher
+        self._reference = None  # ReferenceScan of the last scan accepted (or the first)
+        self._reference_index = None  # its index in the matcher's numbering
+
+    def add_scan(self, scan, guess, points):
+        """(Match or None, z): the matcher's answer and its motion, refined where possible.
+        `points`: scan_matching.scan_to_points of `scan` with the matcher's range limits."""
+        index = self.matcher.next_index
+        match = self.matcher.add_scan(scan, guess, points)
+        z = None
+        if match is not None:
+            z = np.asarray(match.z, float)
+            if self._reference_index == match.index_from:
+                z, _ = refine(self._reference, points, z)
+        if match is not None or self._reference_index is None:
+            self._reference = ReferenceScan.from_points(points)
+            self._reference_index = index
+        return match, z
+
+
+def refine(reference: ReferenceScan, points, z0):
+    """z = laser_j ⊖ laser_i refined so points of scan j lie on the lines of scan i.
+
+    Returns (z, number of pairs used), or (z0, 0) if too few pairs were found.
+    """
+    q = np.asarray(points, float)[:, :2]
+    z = np.array(z0, float)
+    used = 0
+    for _ in range(ITERATIONS):
+        moved = se2.transform_points(z, q)
+        dist, idx = reference.tree.query(moved, distance_upper_bound=MAX_PAIR_DISTANCE)
+        ok = np.isfinite(dist)
+        used = int(ok.sum())
+        if used < 20:
+            return np.array(z0, float), 0
+        n = reference.normals[idx[ok]]
+        residual = np.einsum("ni,ni->n", n, moved[ok] - reference.points[idx[ok]])
+        # ∂(R(θ) q + t)/∂θ = S R(θ) q: the rotated point turned by 90°.
+        rotated = se2.rotate(z[2], q[ok])
+        d_theta = n[:, 0] * -rotated[:, 1] + n[:, 1] * rotated[:, 0]
+        jac = np.column_stack([n[:, 0], n[:, 1], d_theta])
+        weight = np.minimum(1.0, HUBER / np.maximum(np.abs(residual), 1e-12))
+        hessian = jac.T @ (weight[:, None] * jac)
+        gradient = jac.T @ (weight * residual)
+        try:
+            step = -np.linalg.solve(hessian + 1e-9 * np.eye(3), gradient)
+        except np.linalg.LinAlgError:
+            return np.array(z0, float), 0
+        z = z + step
+        if np.linalg.norm(step[:2]) < 1e-6 and abs(step[2]) < 1e-7:
+            break
+    z[2] = se2.wrap_angle(z[2])
+    return z, used

@@ -1,0 +1,397 @@
+"""Encoder stream conditioning and wheel angles at scan stamps.
+
+Two jobs, in the order the data flows:
+
+1. :class:`EncoderStream` turns raw JointState wheel positions, fed one at a time, into a clean,
+   bounded history of cumulative wheel angles (rad): counter wrap-around unwrapped, ticks
+   converted to radians, bad samples rejected and counted, and the history cut into
+   *segments* wherever it cannot be trusted to be continuous (a gap, a clock jump, an
+   absurd jump of the counter). Wheel angles are interpolated only inside a segment.
+
+2. :class:`ScanSynchronizer` holds each scan until the encoder stream covers its stamp, then
+   emits it as a :class:`SyncedScan` with the wheel angles at that stamp. Increments between
+   any two synced scans come from :func:`increment_between` (same segment required), and
+   :func:`consecutive_increments` yields them for each consecutive pair.
+
+Both work online (a node feeding messages as they arrive) and offline (a bag read in record
+order) with the same code, and keep memory bounded.
+
+Why interpolate: encoders (typ. 20–100 Hz) and the laser (typ. 10 Hz) are not synchronised;
+taking the nearest encoder sample would put up to half an encoder period (0.5 cm at 1 m/s
+and 100 Hz, more at 20 Hz) of timing error into every odometry edge, correlated with speed,
+which the calibration would absorb into the wheel radii. Linear interpolation is exact for
+constant wheel speed between two samples.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator, Optional
+
+import numpy as np
+
+from sclam_ros.core.inputs import EncoderSample, Rejections, Scan
+
+
+@dataclass
+class SyncConfig:
+    """Thresholds of the stream conditioning (s, rad/s, rad)."""
+
+    # Longest interval between two encoder samples that is still interpolated across; a
+    # longer silence starts a new segment (the counter may have wrapped more than once,
+    # the robot may have been bumped, a driver restarted). 0.5 s is 10 periods at 20 Hz.
+    max_gap: float = 0.5
+    # A stamp earlier than the newest one by more than this is a clock jump (a bag played in
+    # a loop, a clock set back): the history is dropped and a new segment starts. Smaller
+    # steps back are single out-of-order samples and are rejected.
+    clock_jump_backward: float = 1.0
+    # An increment larger than max_wheel_speed·dt + jump_margin is not physical (a counter
+    # reset, a driver restart, a corrupted value): a new segment starts at that sample
+    # instead of letting the jump into an odometry edge. 60 rad/s is 6 m/s on a 0.1 m wheel.
+    max_wheel_speed: float = 60.0
+    jump_margin: float = 0.5
+    # History kept behind the newest sample, so memory stays bounded online; the
+    # synchroniser also trims what no pending scan can need.
+    max_history: float = 10.0
+    # How long (in scan time) a scan waits for the encoder stream to reach its stamp.
+    max_scan_latency: float = 1.0
+
+
+@dataclass
+class WheelAngles:
+    """Cumulative wheel angles (left, right) in rad at ``stamp``, in encoder ``segment``."""
+
+    stamp: float
+    angles: np.ndarray  # (2,) rad
+    segment: int
+
+
+class EncoderStream:
+    """Raw wheel positions in, clean cumulative wheel angles out.
+
+    ``encoder_wrap`` and ``ticks_per_revolution`` are those of :class:`sclam_ros.core.params.SclamParams`
+    (raw units; 0 = no wrap / positions already in radians). Rejected samples are counted in
+    ``rejections`` under ``encoder_*`` reasons; segment starts are counted in
+    ``segment_breaks`` by cause (``gap``, ``clock_jump_backward``, ``encoder_jump``).
+    """
+
+    def __init__(
+        self,
+        ticks_per_revolution: float = 0.0,
+        encoder_wrap: float = 0.0,
+        config: Optional[SyncConfig] = None,
+        rejections: Optional[Rejections] = None,
+    ):
+        self.config = config or SyncConfig()
+        self.rejections = rejections if rejections is not None else Rejections()
+        self.segment_breaks: Counter = Counter()
+        self._wrap = float(encoder_wrap)
+        self._rad_per_unit = 2.0 * math.pi / ticks_per_revolution if ticks_per_revolution > 0 else 1.0
+        # Parallel lists sorted by stamp; lists bisect in O(log n) and trim cheaply in bulk.
+        self._stamps: list[float] = []
+        self._left: list[float] = []
+        self._right: list[float] = []
+        self._segments: list[int] = []
+        self.segment = -1  # id of the current segment; -1 before the first sample
+        self.segment_cause: dict[int, str] = {}
+        self._last_raw: Optional[tuple[float, float]] = None
+        self._last_stamp: Optional[float] = None
+
+    @classmethod
+    def from_params(cls, params, config=None, rejections=None) -> "EncoderStream":
+        return cls(params.ticks_per_revolution, params.encoder_wrap, config, rejections)
+
+    # --- input -------------------------------------------------------------------------
+    def add(self, stamp: float, left_raw: float, right_raw: float) -> bool:
+        """Feed one raw sample; True if it was kept."""
+        if not (math.isfinite(stamp) and math.isfinite(left_raw) and math.isfinite(right_raw)):
+            self.rejections.add("encoder_non_finite")
+            return False
+        cause = None  # why a new segment starts at this sample, if it does
+        if self._last_stamp is not None:
+            step = stamp - self._last_stamp
+            if step == 0.0:
+                self.rejections.add("encoder_duplicate_stamp")
+                return False
+            if step < 0.0:
+                if -step <= self.config.clock_jump_backward:
+                    self.rejections.add("encoder_non_monotonic")
+                    return False
+                # The clock went back: nothing before can be paired with what follows.
+                self.clear()
+                cause = "clock_jump_backward"
+            elif step > self.config.max_gap:
+                cause = "gap"
+        # The history holds unwrapped positions in raw units (integer tick counts stay exact
+        # in a float64 up to 2^53); radians are produced on the way out.
+        left, right = left_raw, right_raw
+        if self._last_raw is None:
+            self._start_segment(cause or "start")
+        else:
+            d_left = self._unwrap(left_raw - self._last_raw[0])
+            d_right = self._unwrap(right_raw - self._last_raw[1])
+            limit = self.config.max_wheel_speed * step + self.config.jump_margin
+            if cause is None and max(abs(d_left), abs(d_right)) * self._rad_per_unit > limit:
+                cause = "encoder_jump"
+            if cause is None:
+                left, right = self._left[-1] + d_left, self._right[-1] + d_right
+            else:
+                # New segment: angles restart from the raw reading; only differences
+                # within a segment are ever used.
+                self._start_segment(cause)
+        self._append(stamp, left, right)
+        self._last_raw = (left_raw, right_raw)
+        self._last_stamp = stamp
+        self._trim(stamp - self.config.max_history)
+        return True
+
+    def clear(self) -> None:
+        """Forget the history (the next sample starts a new segment)."""
+        self._stamps.clear()
+        self._left.clear()
+        self._right.clear()
+        self._segments.clear()
+        self._last_raw = None
+        self._last_stamp = None
+
+    def discard_before(self, stamp: float) -> None:
+        """Drop samples not needed to interpolate at ``stamp`` or later, nor to predict
+        beyond the newest sample (keeps two at or before ``stamp``)."""
+        self._trim(stamp, keep=2)
+
+    # --- output ------------------------------------------------------------------------
+    @property
+    def latest_stamp(self) -> Optional[float]:
+        return self._stamps[-1] if self._stamps else None
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def samples(self) -> list[EncoderSample]:
+        """The clean samples currently held (cumulative rad, per segment)."""
+        k = self._rad_per_unit
+        return [EncoderSample(t, l * k, r * k) for t, l, r in zip(self._stamps, self._left, self._right)]
+
+    def wheel_angles_at(self, t: float) -> Optional[WheelAngles]:
+        """Wheel angles at ``t`` by linear interpolation, or None where they are unknown."""
+        return self.lookup(t)[0]
+
+    def lookup(self, t: float) -> tuple[Optional[WheelAngles], Optional[str]]:
+        """(WheelAngles, None), or (None, reason) when ``t`` is outside the history, in a gap,
+        or across a segment break."""
+        stamps = self._stamps
+        if not stamps or t < stamps[0]:
+            return None, "before_encoder_history"
+        if t > stamps[-1]:
+            return None, "after_encoder_history"
+        i = bisect.bisect_right(stamps, t) - 1  # stamps[i] <= t
+        if stamps[i] == t:
+            angles = np.array([self._left[i], self._right[i]]) * self._rad_per_unit
+            return WheelAngles(t, angles, self._segments[i]), None
+        if self._segments[i] != self._segments[i + 1]:
+            return None, "in_encoder_gap"
+        return self._on_line(i, t), None
+
+    def predict(self, t: float) -> Optional[WheelAngles]:
+        """Wheel angles at ``t``: interpolated inside the history, extrapolated at the last
+        two samples' speed a little beyond it (at most ``max_gap``), else None. For seeding
+        a scan match before the encoders reach the scan, never for an odometry edge."""
+        angles, reason = self.lookup(t)
+        if angles is not None or reason != "after_encoder_history" or len(self._stamps) < 2:
+            return angles
+        if t - self._stamps[-1] > self.config.max_gap or self._segments[-1] != self._segments[-2]:
+            return None
+        return self._on_line(len(self._stamps) - 2, t)
+
+    # --- internals -----------------------------------------------------------------------
+    def _on_line(self, i: int, t: float) -> WheelAngles:
+        """Wheel angles at ``t`` on the line through samples i and i + 1 (same segment)."""
+        stamps = self._stamps
+        w = (t - stamps[i]) / (stamps[i + 1] - stamps[i])
+        left = self._left[i] + w * (self._left[i + 1] - self._left[i])
+        right = self._right[i] + w * (self._right[i + 1] - self._right[i])
+        return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[i])
+
+    def _unwrap(self, delta: float) -> float:
+        if self._wrap > 0.0:
+            # Map the raw difference into [-wrap/2, wrap/2): exact for integer tick counts.
+            half = 0.5 * self._wrap
+            delta = (delta + half) % self._wrap - half
+        return delta
+
+    def _start_segment(self, cause: str) -> None:
+        self.segment += 1
+        self.segment_cause[self.segment] = cause
+        if cause != "start":
+            self.segment_breaks[cause] += 1
+        # Keep the cause map bounded too: only segments still in the history matter.
+        if len(self.segment_cause) > 64:
+            oldest = self._segments[0] if self._segments else self.segment
+            for sid in [s for s in self.segment_cause if s < oldest]:
+                del self.segment_cause[sid]
+
+    def _append(self, stamp: float, left: float, right: float) -> None:
+        self._stamps.append(stamp)
+        self._left.append(left)
+        self._right.append(right)
+        self._segments.append(self.segment)
+
+    def _trim(self, stamp: float, keep: int = 1) -> None:
+        # Keep the last `keep` samples at or before ``stamp`` so ``stamp`` itself stays
+        # interpolable.
+        k = bisect.bisect_right(self._stamps, stamp) - keep
+        if k > 0:
+            del self._stamps[:k], self._left[:k], self._right[:k], self._segments[:k]
+
+
+@dataclass
+class SyncedScan:
+    """A scan with the wheel angles at its stamp. ``index`` counts synced scans from 0."""
+
+    index: int
+    scan: Scan
+    wheels: WheelAngles
+
+
+@dataclass
+class WheelIncrement:
+    """Wheel angle increments between two synced scans: u = (dφ_l, dφ_r) in rad over dt s."""
+
+    index_from: int
+    index_to: int
+    stamp_from: float
+    stamp_to: float
+    dphi: np.ndarray  # (2,) rad
+
+    @property
+    def dt(self) -> float:
+        return self.stamp_to - self.stamp_from
+
+
+def increment_between(
+    a: SyncedScan, b: SyncedScan, stream: Optional[EncoderStream] = None
+) -> tuple[Optional[WheelIncrement], Optional[str]]:
+    """(increment from a to b, None), or (None, reason) when the encoders do not bridge them.
+
+    The reason names the cause of the segment break when ``stream`` is given
+    (``increment_across_gap``, ``increment_across_clock_jump_backward``, ...).
+    """
+    if b.wheels.segment != a.wheels.segment:
+        cause = "segment_break"
+        if stream is not None:
+            cause = stream.segment_cause.get(b.wheels.segment, cause)
+        return None, f"increment_across_{cause}"
+    if b.scan.stamp <= a.scan.stamp:
+        return None, "increment_non_monotonic"
+    return (
+        WheelIncrement(a.index, b.index, a.scan.stamp, b.scan.stamp, b.wheels.angles - a.wheels.angles),
+        None,
+    )
+
+
+class ScanSynchronizer:
+    """Pairs scans with the encoder stream, online or over a bag in record order.
+
+    Feed JointState samples with :meth:`add_encoder` and scans with :meth:`add_scan`, in the
+    order they arrive; each returns the scans that became ready (a list of SyncedScan, in
+    stamp order). Call :meth:`flush` at the end of a bag. Scans that can never be synced
+    are counted in ``rejections`` (``scan_*`` reasons).
+    """
+
+    def __init__(self, stream: EncoderStream, rejections: Optional[Rejections] = None):
+        self.stream = stream
+        self.config = stream.config
+        self.rejections = rejections if rejections is not None else stream.rejections
+        self._pending: list[Scan] = []
+        self._last_scan_stamp: Optional[float] = None
+        self._next_index = 0
+        self._stream_resets = 0
+
+    def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list[SyncedScan]:
+        self.stream.add(stamp, left_raw, right_raw)
+        resets = self.stream.segment_breaks["clock_jump_backward"]
+        if resets != self._stream_resets:
+            # The encoder clock went back: scans waiting for the old time line never resolve.
+            self._stream_resets = resets
+            self._drop_pending("scan_dropped_at_clock_jump")
+        return self._resolve()
+
+    def add_scan(self, scan: Scan) -> list[SyncedScan]:
+        last = self._last_scan_stamp
+        if not math.isfinite(scan.stamp):
+            self.rejections.add("scan_non_finite_stamp")
+            return []
+        if last is not None:
+            if scan.stamp == last:
+                self.rejections.add("scan_duplicate_stamp")
+                return []
+            if scan.stamp < last:
+                if last - scan.stamp <= self.config.clock_jump_backward:
+                    self.rejections.add("scan_non_monotonic")
+                    return []
+                self._drop_pending("scan_dropped_at_clock_jump")
+        self._last_scan_stamp = scan.stamp
+        self._pending.append(scan)
+        return self._resolve()
+
+    @property
+    def pending(self) -> tuple:
+        """The scans waiting for the encoders to reach their stamp, oldest first."""
+        return tuple(self._pending)
+
+    def flush(self) -> list[SyncedScan]:
+        """End of data: sync what can be, count the rest."""
+        ready = self._resolve()
+        self._drop_pending("scan_no_encoder_coverage")
+        return ready
+
+    def _resolve(self) -> list[SyncedScan]:
+        ready = []
+        latest = self.stream.latest_stamp
+        newest_scan = self._last_scan_stamp
+        while self._pending:
+            scan = self._pending[0]
+            covered = latest is not None and scan.stamp <= latest
+            if not covered:
+                if newest_scan is not None and newest_scan - scan.stamp > self.config.max_scan_latency:
+                    self._pending.pop(0)
+                    self.rejections.add("scan_no_encoder_coverage")
+                    continue
+                break  # wait for more encoder samples; later scans wait behind it
+            self._pending.pop(0)
+            wheels, reason = self.stream.lookup(scan.stamp)
+            if wheels is None:
+                self.rejections.add(f"scan_{reason}")
+                continue
+            ready.append(SyncedScan(self._next_index, scan, wheels))
+            self._next_index += 1
+        # Nothing older than the oldest pending scan (or the newest scan) is needed any more.
+        horizon = self._pending[0].stamp if self._pending else newest_scan
+        if horizon is not None:
+            self.stream.discard_before(horizon)
+        return ready
+
+    def _drop_pending(self, reason: str) -> None:
+        if self._pending:
+            self.rejections.add(reason, len(self._pending))
+            self._pending.clear()
+
+
+def consecutive_increments(
+    synced: Iterable[SyncedScan],
+    stream: Optional[EncoderStream] = None,
+    rejections: Optional[Rejections] = None,
+) -> Iterator[WheelIncrement]:
+    """Wheel increments of each consecutive pair of synced scans; pairs that the encoders do
+    not bridge are counted in ``rejections`` and skipped."""
+    previous = None
+    for item in synced:
+        if previous is not None:
+            inc, reason = increment_between(previous, item, stream)
+            if inc is not None:
+                yield inc
+            elif rejections is not None:
+                rejections.add(reason)
+        previous = item

@@ -1,0 +1,307 @@
+"""rosbag2 reading and writing through `rosbags` (no rclpy needed).
+
+Reading yields the deserialized rosbags messages as they are; turning them into core
+inputs is the job of ``sclam_ros.io.messages`` (duck-typed, so the node's rclpy
+messages go through the same code). Writing builds messages with the Jazzy type
+store's classes, so a bag written here is read by ``ros2 bag`` as well.
+
+Accepted inputs: a rosbag2 folder (``metadata.yaml`` + storage files), or one
+``.db3`` / ``.mcap`` storage file (inside its folder, the whole folder is read so
+split recordings stay complete; a lone storage file is read on its own). ROS 1
+``.bag`` files also open, since ``AnyReader`` handles them for free.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterable, Iterator, Sequence
+
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.typesys import Stores, get_typestore
+
+from sclam_ros.core.inputs import Scan
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+STORAGE_SUFFIXES = (".db3", ".mcap")
+# rosbag2 format version written; 9 is what Jazzy's ros2 bag writes.
+ROSBAG2_VERSION = 9
+NS_PER_S = 1_000_000_000
+
+
+class BagError(ValueError):
+    """A bag that cannot be used as asked; the message says which and why."""
+
+
+# --- reading -------------------------------------------------------------------------
+
+
+def _reader_path(path: Path) -> Path:
+    """The path AnyReader should open for ``path``, or BagError saying why none fits."""
+    if not path.exists():
+        raise BagError(f"bag not found: {path}")
+    if path.is_dir():
+        if not (path / "metadata.yaml").is_file():
+            storage = sorted(p.name for p in path.iterdir() if p.suffix in STORAGE_SUFFIXES)
+            hint = (
+                f"; it holds storage file(s) {', '.join(storage)}: pass one of them directly"
+                if storage
+                else ""
+            )
+            raise BagError(f"not a rosbag2 folder (no metadata.yaml): {path}{hint}")
+        return path
+    if path.suffix in STORAGE_SUFFIXES:
+        # Inside a complete bag folder read the folder, so split files are all read.
+        return path.parent if (path.parent / "metadata.yaml").is_file() else path
+    if path.suffix == ".bag":
+        return path
+    if path.name == "metadata.yaml":
+        return path.parent
+    raise BagError(
+        f"not a rosbag2: {path} (expected a rosbag2 folder or a "
+        f"{' / '.join(STORAGE_SUFFIXES)} file)"
+    )
+
+
+@contextmanager
+def open_reader(path) -> Iterator[AnyReader]:
+    """``with open_reader(path) as reader:`` an opened ``AnyReader`` on the bag at ``path``.
+
+    Raises BagError for a missing path, something that is not a bag, or a bag that
+    cannot be opened (corrupt metadata, unknown storage, ...).
+    """
+    path = Path(path)
+    target = _reader_path(path)
+    try:
+        reader = AnyReader([target], default_typestore=TYPESTORE)
+        reader.open()
+    except (AnyReaderError, FileNotFoundError, OSError) as exc:
+        raise BagError(f"cannot open bag {path}: {exc}") from None
+    except Exception as exc:  # rosbags raises assorted errors on corrupt files
+        raise BagError(f"cannot open bag {path}: {type(exc).__name__}: {exc}") from None
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def _describe_topics(reader: AnyReader) -> str:
+    lines = [f"  {name} [{info.msgtype}] ({info.msgcount} msgs)" for name, info in reader.topics.items()]
+    return "\n".join(lines) if lines else "  (none)"
+
+
+def _connections_for(reader: AnyReader, topics: Iterable[str], path) -> list:
+    topics = list(topics)
+    available = reader.topics
+    missing = [t for t in topics if t not in available]
+    if missing:
+        raise BagError(
+            f"topic(s) {', '.join(missing)} not in bag {path}; available topics:\n"
+            + _describe_topics(reader)
+        )
+    wanted = set(topics)
+    return [c for c in reader.connections if c.topic in wanted]
+
+
+def iter_messages(path, topics: Sequence[str]) -> Iterator[tuple[str, float, object]]:
+    """(topic, record_time_s, message) for ``topics``, in record-time order.
+
+    Raises BagError before yielding anything if a topic is missing from the bag.
+    """
+    if isinstance(topics, str):
+        topics = [topics]
+    with open_reader(path) as reader:
+        connections = _connections_for(reader, topics, path)
+        for connection, timestamp_ns, raw in reader.messages(connections=connections):
+            msg = reader.deserialize(raw, connection.msgtype)
+            yield connection.topic, timestamp_ns / NS_PER_S, msg
+
+
+def topic_info(path) -> dict[str, tuple[str, int]]:
+    """topic -> (message type, message count)."""
+    with open_reader(path) as reader:
+        return {name: (info.msgtype, info.msgcount) for name, info in reader.topics.items()}
+
+
+def duration_s(path) -> float:
+    """Record time from the first to the last message, in seconds (0 for an empty bag)."""
+    with open_reader(path) as reader:
+        if reader.message_count == 0:
+            return 0.0
+        # rosbags' end_time is one nanosecond after the last message.
+        return max(0, reader.end_time - 1 - reader.start_time) / NS_PER_S
+
+
+# --- writing -------------------------------------------------------------------------
+
+
+def stamp_to_ns(stamp_s: float) -> int:
+    return int(round(float(stamp_s) * NS_PER_S))
+
+
+def time_msg(stamp_s: float):
+    """builtin_interfaces/Time of a stamp in seconds (nanosecond resolution)."""
+    sec, nanosec = divmod(stamp_to_ns(stamp_s), NS_PER_S)
+    return TYPESTORE.types["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nanosec))
+
+
+def header_msg(stamp_s: float, frame_id: str):
+    return TYPESTORE.types["std_msgs/msg/Header"](stamp=time_msg(stamp_s), frame_id=frame_id)
+
+
+def _quaternion_of_yaw(yaw: float):
+    return TYPESTORE.types["geometry_msgs/msg/Quaternion"](
+        x=0.0, y=0.0, z=float(np.sin(yaw / 2.0)), w=float(np.cos(yaw / 2.0))
+    )
+
+
+def _pose_msg(pose_xyth):
+    types = TYPESTORE.types
+    x, y, th = (float(v) for v in pose_xyth)
+    return types["geometry_msgs/msg/Pose"](
+        position=types["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+        orientation=_quaternion_of_yaw(th),
+    )
+
+
+def _covariance36(covariance) -> np.ndarray:
+    """A 6x6 row-major covariance from None, a 36-vector, a 6x6 or a planar 3x3 (x, y, yaw)."""
+    out = np.zeros(36)
+    if covariance is None:
+        return out
+    cov = np.asarray(covariance, float)
+    if cov.size == 36:
+        return cov.reshape(36).copy()
+    if cov.shape != (3, 3):
+        raise ValueError(f"covariance must be 6x6, 36 values or planar 3x3, got shape {cov.shape}")
+    full = np.zeros((6, 6))
+    index = [0, 1, 5]  # x, y, yaw in (x, y, z, roll, pitch, yaw)
+    full[np.ix_(index, index)] = cov
+    return full.reshape(36)
+
+
+class BagWriter:
+    """Write a rosbag2 (sqlite3 or mcap) with the message kinds this package uses.
+
+    ``with BagWriter(path) as bag: bag.write_scan("/scan", scan)``. The folder must
+    not exist yet (rosbags refuses to overwrite). Record time defaults to the header
+    stamp; pass ``record_time_s`` to model a recorder receiving messages later.
+    """
+
+    def __init__(self, path, storage: str = "sqlite3"):
+        plugins = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}
+        if storage not in plugins:
+            raise BagError(f"storage must be one of {sorted(plugins)}, got {storage!r}")
+        self.path = Path(path)
+        self.storage = storage
+        try:
+            self._writer = Writer(self.path, version=ROSBAG2_VERSION, storage_plugin=plugins[storage])
+        except WriterError as exc:
+            raise BagError(str(exc)) from None
+        self._connections: dict[str, object] = {}
+
+    # context manager ------------------------------------------------------------------
+    def open(self) -> "BagWriter":
+        try:
+            self._writer.open()
+        except WriterError as exc:
+            raise BagError(str(exc)) from None
+        return self
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def __enter__(self) -> "BagWriter":
+        return self.open()
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        self.close()
+        return False
+
+    # generic --------------------------------------------------------------------------
+    def write(self, topic: str, msgtype: str, msg, record_time_s: float) -> None:
+        """Serialize ``msg`` (a type-store instance of ``msgtype``) onto ``topic``."""
+        connection = self._connections.get(topic)
+        if connection is None:
+            connection = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+            self._connections[topic] = connection
+        elif connection.msgtype != msgtype:
+            raise BagError(f"topic {topic} already carries {connection.msgtype}, not {msgtype}")
+        self._writer.write(connection, stamp_to_ns(record_time_s), TYPESTORE.serialize_cdr(msg, msgtype))
+
+    # message kinds --------------------------------------------------------------------
+    def write_joint_state(
+        self, topic, stamp_s, names, positions, velocities=None, record_time_s=None, frame_id=""
+    ) -> None:
+        msgtype = "sensor_msgs/msg/JointState"
+        msg = TYPESTORE.types[msgtype](
+            header=header_msg(stamp_s, frame_id),
+            name=list(names),
+            position=np.asarray(positions, dtype=np.float64),
+            velocity=np.asarray([] if velocities is None else velocities, dtype=np.float64),
+            effort=np.zeros(0, dtype=np.float64),
+        )
+        self.write(topic, msgtype, msg, stamp_s if record_time_s is None else record_time_s)
+
+    def write_scan(self, topic, scan: Scan, record_time_s=None, scan_time=None) -> None:
+        """A LaserScan from a core ``Scan``; ``scan_time`` defaults to beams × time_increment."""
+        msgtype = "sensor_msgs/msg/LaserScan"
+        ranges = np.asarray(scan.ranges, dtype=np.float32)
+        n = len(ranges)
+        msg = TYPESTORE.types[msgtype](
+            header=header_msg(scan.stamp, scan.frame_id),
+            angle_min=float(scan.angle_min),
+            angle_max=float(scan.angle_min + scan.angle_increment * max(n - 1, 0)),
+            angle_increment=float(scan.angle_increment),
+            time_increment=float(scan.time_increment),
+            scan_time=float(scan.time_increment * n if scan_time is None else scan_time),
+            range_min=float(scan.range_min),
+            range_max=float(scan.range_max),
+            ranges=ranges,
+            intensities=np.zeros(0, dtype=np.float32),
+        )
+        self.write(topic, msgtype, msg, scan.stamp if record_time_s is None else record_time_s)
+
+    def write_odometry(
+        self,
+        topic,
+        stamp_s,
+        pose_xyth,
+        twist_v_w=(0.0, 0.0),
+        frame_id="odom",
+        child_frame_id="base_link",
+        covariance=None,
+        twist_covariance=None,
+        record_time_s=None,
+    ) -> None:
+        """nav_msgs/Odometry: planar pose in ``frame_id``, twist (v, ω) in ``child_frame_id``.
+
+        ``twist_v_w`` may also be (vx, vy, ω) for a body that slips sideways.
+        """
+        msgtype = "nav_msgs/msg/Odometry"
+        types = TYPESTORE.types
+        twist = [float(v) for v in twist_v_w]
+        vx, vy, w = (twist[0], 0.0, twist[1]) if len(twist) == 2 else twist
+        msg = types[msgtype](
+            header=header_msg(stamp_s, frame_id),
+            child_frame_id=child_frame_id,
+            pose=types["geometry_msgs/msg/PoseWithCovariance"](
+                pose=_pose_msg(pose_xyth), covariance=_covariance36(covariance)
+            ),
+            twist=types["geometry_msgs/msg/TwistWithCovariance"](
+                twist=types["geometry_msgs/msg/Twist"](
+                    linear=types["geometry_msgs/msg/Vector3"](x=vx, y=vy, z=0.0),
+                    angular=types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=w),
+                ),
+                covariance=_covariance36(twist_covariance),
+            ),
+        )
+        self.write(topic, msgtype, msg, stamp_s if record_time_s is None else record_time_s)
+
+    def write_pose(self, topic, stamp_s, pose_xyth, frame_id="map", record_time_s=None) -> None:
+        """geometry_msgs/PoseStamped of a planar pose."""
+        msgtype = "geometry_msgs/msg/PoseStamped"
+        msg = TYPESTORE.types[msgtype](header=header_msg(stamp_s, frame_id), pose=_pose_msg(pose_xyth))
+        self.write(topic, msgtype, msg, stamp_s if record_time_s is None else record_time_s)
+

@@ -1,0 +1,85 @@
+"""ROS messages → core input types, by duck typing.
+
+The same functions take rclpy messages (``sensor_msgs.msg.JointState``, ``LaserScan``) and
+messages deserialised by rosbags: both expose the same field names, so nothing here imports
+rclpy or rosbags. Sequences may be Python lists, ``array.array`` (rclpy) or numpy arrays
+(rosbags); ``np.asarray`` reads all three.
+
+A message that cannot be used raises :class:`MessageRejected`; its ``reason`` is a short,
+stable key meant for :class:`sclam_ros.core.inputs.Rejections`, its text says what was wrong.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sclam_ros.core.inputs import Scan
+
+
+class MessageRejected(ValueError):
+    """A message that is dropped on purpose. ``reason`` is the key to count it under."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+def stamp_to_sec(stamp) -> float:
+    """builtin_interfaces/Time (``sec``, ``nanosec``) → seconds as a float.
+
+    A float64 keeps ~0.2 µs resolution for epoch stamps (1.7e9 s), far below any encoder
+    or scan period, so the core works in plain seconds.
+    """
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
+    """(stamp s, left position, right position) of the two wheel joints of ``params``.
+
+    Positions stay in the encoder's raw unit (ticks, or radians when
+    ``params.ticks_per_revolution`` is 0): unwrapping a counter needs the raw value, so the
+    conversion to radians happens in :class:`sclam_ros.frontend.sync.EncoderStream`.
+
+    Raises MessageRejected with reason
+      ``joint_state_missing_joint``   a wheel joint is not in ``name`` (the text lists the names present),
+      ``joint_state_short_position``  ``position`` has fewer entries than the wheel's index in ``name``,
+      ``joint_state_non_finite``      a wheel position is NaN or ±inf.
+    """
+    names = list(msg.name)
+    wanted = (params.left_wheel_joint, params.right_wheel_joint)
+    missing = [joint for joint in wanted if joint not in names]
+    if missing:
+        raise MessageRejected(
+            "joint_state_missing_joint",
+            f"joint(s) {missing} not in JointState; names present: {names}",
+        )
+    position = np.asarray(msg.position, dtype=float)
+    i_left, i_right = names.index(wanted[0]), names.index(wanted[1])
+    if len(position) <= max(i_left, i_right):
+        raise MessageRejected(
+            "joint_state_short_position",
+            f"{len(names)} names but {len(position)} positions",
+        )
+    left, right = float(position[i_left]), float(position[i_right])
+    if not (math.isfinite(left) and math.isfinite(right)):
+        raise MessageRejected(
+            "joint_state_non_finite", f"wheel positions left={left}, right={right}"
+        )
+    return stamp_to_sec(msg.header.stamp), left, right
+
+
+def laser_scan_to_scan(msg) -> Scan:
+    """sensor_msgs/LaserScan → Scan. Beams are not filtered here: the scan matcher decides
+    what a valid return is (0, NaN, inf, out of limits), in one place."""
+    return Scan(
+        stamp=stamp_to_sec(msg.header.stamp),
+        ranges=np.asarray(msg.ranges, dtype=float),
+        angle_min=float(msg.angle_min),
+        angle_increment=float(msg.angle_increment),
+        range_min=float(msg.range_min),
+        range_max=float(msg.range_max),
+        time_increment=float(msg.time_increment),
+        frame_id=str(msg.header.frame_id),
+    )

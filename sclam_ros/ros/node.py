@@ -1,0 +1,368 @@
+"""``sclam_node``: online calibration on the live ROS graph.
+
+The node is a thin shell around :class:`sclam_ros.online.window.OnlineCalibrator`: it declares the
+parameters of :class:`sclam_ros.core.params.SclamParams`, converts messages, and publishes what the
+calibrator knows. Window solves run on a thread of their own (online/solver_thread.py): the
+subscription callbacks only integrate ~/odom and append keyframes, so they never wait for one.
+
+Subscribes
+  ``joint_states_topic`` (sensor_msgs/JointState, reliable) and ``scan_topic``
+  (sensor_msgs/LaserScan, sensor-data QoS).
+Publishes (``~`` is the node name, ``/sclam`` by default)
+  ``~/odom``             nav_msgs/Odometry ``odom_frame`` → ``base_frame``, integrated at the
+                         encoder rate with the current calibration; the pose covariance holds
+                         the wheel noise accumulated along the path plus the calibration's own
+                         uncertainty propagated through the whole path.
+  ``~/laser_pose``       geometry_msgs/PoseWithCovarianceStamped, the laser on ``base_frame``;
+                         covariance slots x, y, yaw (z, roll, pitch are fixed by the planar model).
+  ``~/wheel_parameters`` std_msgs/Float64MultiArray, a 2 × 3 row-major matrix::
+
+                             [r_l,   r_r,   b,            # row "value"  (m)
+                              σ_r_l, σ_r_r, σ_b]          # row "sigma"  (m)
+
+                         ``layout.dim`` names the rows ("value,sigma") and the columns
+                         ("wheel_radius_left,wheel_radius_right,wheel_base").
+  ``/diagnostics``       diagnostic_msgs/DiagnosticArray at 1 Hz (wall clock): window fill
+                         (radii window, and its part kept as poses), radius changes detected
+                         and the last change χ² (online/window.py),
+                         observability of each parameter (σ < ½ prior σ), rejected input by
+                         reason, last solve converged (WARN after 3 unconverged in a row).
+  ``~/laser_pose`` and ``~/wheel_parameters`` are transient-local: a late subscriber gets the last one.
+Services (std_srvs/Trigger)
+  ``~/reset_window``       forget the window's keyframes (radii restart from their current value)
+  ``~/reset_calibration``  back to the nominal calibration, all information dropped
+  ``~/save_calibration``   write a parameters YAML with the current estimate to ``calibration_file``
+Parameters
+  every field of SclamParams (same names, defaults, units in the descriptions), plus
+  ``calibration_file`` (default ``sclam_calibration.yaml``, relative to the working directory).
+  At runtime ``window_distance``, ``wheel_noise``, ``lateral_noise``, ``odom_frame``,
+  ``base_frame`` and ``calibration_file`` can be changed; the others are read-only.
+"""
+from __future__ import annotations
+
+import gc
+import math
+import sys
+import threading
+from dataclasses import fields
+from typing import Optional
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import JointState, LaserScan
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_srvs.srv import Trigger
+
+from sclam_ros.core.inputs import Rejections
+from sclam_ros.core.params import (
+    CALIBRATION_KEYS,
+    NODE_NAME,
+    ParamsError,
+    SclamParams,
+    check_parameter_value,
+)
+from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan
+from sclam_ros.online.odometry import OdometryIntegrator
+from sclam_ros.online.solver_thread import SolverThread
+from sclam_ros.online.status import (
+    OK,
+    WHEEL_PARAMETER_COLUMNS,
+    WHEEL_PARAMETER_ROWS,
+    diagnostic_status,
+    wheel_parameters_data,
+)
+from sclam_ros.online.window import OnlineCalibrator
+
+DEFAULT_CALIBRATION_FILE = "sclam_calibration.yaml"
+# Parameters whose new value the node can use without a restart.
+RUNTIME_PARAMETERS = {
+    "window_distance", "wheel_noise", "lateral_noise", "odom_frame", "base_frame",
+    "calibration_file",
+}
+WARN_THROTTLE_S = 5.0
+
+
+def _yaw_quaternion(q, yaw):
+    q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+
+
+def _covariance36(cov3) -> list:
+    """A 3×3 (x, y, yaw) covariance in the x, y, yaw slots of a row-major 6×6."""
+    out = np.zeros((6, 6))
+    idx = [0, 1, 5]
+    out[np.ix_(idx, idx)] = cov3
+    return out.reshape(-1).tolist()
+
+
+# --- the node -------------------------------------------------------------------------------
+
+
+class SclamNode(Node):
+    def __init__(self, node_name: str = NODE_NAME, **kwargs):
+        super().__init__(node_name, **kwargs)
+        self._declare_parameters()
+        self.params = self._read_params()
+        self.calibration_file = self.get_parameter("calibration_file").value
+        self.rejections = Rejections()
+        # The callbacks (one executor thread) and the window solver thread share the
+        # calibrator; every access to it holds this lock. See online/solver_thread.py.
+        self.lock = threading.Lock()
+        self.calibrator = OnlineCalibrator(self.params, self.rejections, inline_solve=False)
+        self.odometry = OdometryIntegrator(self.params)
+        self.received = {"joint_states": 0, "scan": 0}
+        self.estimates = 0
+
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.odom_pub = self.create_publisher(Odometry, "~/odom", 50)
+        self.laser_pub = self.create_publisher(PoseWithCovarianceStamped, "~/laser_pose", latched)
+        self.wheel_pub = self.create_publisher(Float64MultiArray, "~/wheel_parameters", latched)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(JointState, self.params.joint_states_topic,
+                                 self._on_joint_state, 200)
+        self.create_subscription(LaserScan, self.params.scan_topic, self._on_scan,
+                                 qos_profile_sensor_data)
+        self.solver = SolverThread(self.calibrator, self.lock, self._publish_estimate,
+                                   self._solver_failed)
+        self.create_service(Trigger, "~/reset_window", self._reset_window)
+        self.create_service(Trigger, "~/reset_calibration", self._reset_calibration)
+        self.create_service(Trigger, "~/save_calibration", self._save_calibration)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        # Wall clock: diagnostics keep coming when sim time stands still.
+        self.create_timer(1.0, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        # Everything allocated so far (rclpy, numpy, scipy, KISS-ICP, the node) lives as
+        # long as the process: keep it out of the cyclic collector's full passes. Without
+        # this a full collection walked it all, stopping callbacks and solver ~100 ms
+        # about once a minute (bench/node_latency.py).
+        gc.freeze()
+        self.get_logger().info(
+            f"calibrating from {self.params.joint_states_topic} ({self.params.left_wheel_joint}, "
+            f"{self.params.right_wheel_joint}) and {self.params.scan_topic}"
+        )
+
+    def destroy_node(self):
+        self.solver.stop()
+        return super().destroy_node()
+
+    # --- parameters ---------------------------------------------------------------------
+    def _declare_parameters(self):
+        for f in fields(SclamParams):
+            unit = f.metadata.get("unit", "")
+            description = f.metadata.get("doc", "") + (f" [{unit}]" if unit else "")
+            read_only = f.name not in RUNTIME_PARAMETERS
+            # Numbers accept integers too (``ticks_per_revolution: 0`` in a YAML); the type is
+            # checked by hand so a bad value gets a reason, not an exception.
+            descriptor = ParameterDescriptor(
+                description=description + (" (read-only: restart the node to change)" if read_only else ""),
+                read_only=read_only,
+                dynamic_typing=not isinstance(f.default, str),
+            )
+            self.declare_parameter(f.name, f.default, descriptor)
+        self.declare_parameter(
+            "calibration_file", DEFAULT_CALIBRATION_FILE,
+            ParameterDescriptor(description="where ~/save_calibration writes the parameters "
+                                            "YAML with the current estimate"),
+        )
+
+    def _read_params(self) -> SclamParams:
+        raw = {f.name: self.get_parameter(f.name).value for f in fields(SclamParams)}
+        return SclamParams.from_dict(raw, source=f"parameters of node {self.get_name()}")
+
+    def _on_set_parameters(self, parameters) -> SetParametersResult:
+        defaults = {f.name: f.default for f in fields(SclamParams)}
+        for p in parameters:
+            if p.name == "calibration_file":
+                if not isinstance(p.value, str) or not p.value:
+                    return SetParametersResult(successful=False,
+                                               reason="calibration_file must be a non-empty path")
+                continue
+            if p.name in defaults:
+                reason = check_parameter_value(p.name, p.value, defaults[p.name])
+                if reason:
+                    return SetParametersResult(successful=False, reason=reason)
+        for p in parameters:
+            if p.name == "calibration_file":
+                self.calibration_file = p.value
+            elif p.name == "window_distance":
+                with self.lock:
+                    self.calibrator.set_window_distance(float(p.value))
+            elif p.name in defaults:
+                value = p.value if isinstance(defaults[p.name], str) else float(p.value)
+                setattr(self.params, p.name, value)
+        return SetParametersResult(successful=True)
+
+    # --- input --------------------------------------------------------------------------
+    def _reject(self, reason: str, detail: str):
+        self.rejections.add(reason)
+        self.get_logger().warn(f"input dropped ({reason}): {detail}",
+                               throttle_duration_sec=WARN_THROTTLE_S)
+
+    def _on_joint_state(self, msg: JointState):
+        self.received["joint_states"] += 1
+        try:
+            stamp, left, right = joint_state_to_raw(msg, self.params)
+        except MessageRejected as exc:
+            self._reject(exc.reason, exc.detail)
+            return
+        try:
+            with self.lock:
+                self._publish_odometry(msg, stamp, left, right)
+                self.calibrator.add_encoder(stamp, left, right)
+                self._request_solve_if_due()
+        except Exception as exc:  # never let one message take the node down
+            self._reject("internal_error", f"{type(exc).__name__}: {exc}")
+
+    def _on_scan(self, msg: LaserScan):
+        self.received["scan"] += 1
+        try:
+            scan = laser_scan_to_scan(msg)
+            if len(scan.ranges) == 0:
+                self._reject("scan_empty", "LaserScan without ranges")
+                return
+            if not math.isfinite(scan.stamp):
+                self._reject("scan_non_finite_stamp", "LaserScan stamp is not finite")
+                return
+            with self.lock:
+                self.calibrator.add_scan(scan)
+                self._request_solve_if_due()
+        except Exception as exc:
+            self._reject("internal_error", f"{type(exc).__name__}: {exc}")
+
+    def _request_solve_if_due(self):
+        if self.calibrator.solve_pending:
+            self.calibrator.solve_pending = False
+            self.solver.request()
+
+    def _solver_failed(self, exc: BaseException):
+        self._reject("internal_error", f"window solve: {type(exc).__name__}: {exc}")
+
+    # --- output -------------------------------------------------------------------------
+    def _odometry_calibration(self):
+        k = np.asarray(self.calibrator.calibration[:3], float)
+        estimate = self.calibrator.estimate
+        k_cov = estimate.covariance[:3, :3] if estimate is not None else np.zeros((3, 3))
+        return k, k_cov
+
+    def _publish_odometry(self, msg, stamp, left, right):
+        k, k_cov = self._odometry_calibration()
+        if not self.odometry.add(stamp, left, right, k, k_cov):
+            return
+        odom = Odometry()
+        odom.header.stamp = msg.header.stamp
+        odom.header.frame_id = self.params.odom_frame
+        odom.child_frame_id = self.params.base_frame
+        pose = self.odometry.pose
+        odom.pose.pose.position.x = float(pose[0])
+        odom.pose.pose.position.y = float(pose[1])
+        _yaw_quaternion(odom.pose.pose.orientation, float(pose[2]))
+        odom.pose.covariance = _covariance36(self.odometry.covariance(k_cov))
+        twist = self.odometry.twist
+        odom.twist.twist.linear.x = float(twist[0])
+        odom.twist.twist.linear.y = float(twist[1])
+        odom.twist.twist.angular.z = float(twist[2])
+        odom.twist.covariance = _covariance36(self.odometry.twist_cov)
+        self.odom_pub.publish(odom)
+
+    def _publish_estimate(self, estimate):
+        """~/laser_pose and ~/wheel_parameters (called on the solver thread)."""
+        self.estimates += 1
+        stamp = self.get_clock().now().to_msg()
+        laser = PoseWithCovarianceStamped()
+        laser.header.stamp = stamp
+        laser.header.frame_id = self.params.base_frame
+        laser.pose.pose.position.x = float(estimate.values["laser_x"])
+        laser.pose.pose.position.y = float(estimate.values["laser_y"])
+        _yaw_quaternion(laser.pose.pose.orientation, float(estimate.values["laser_yaw"]))
+        laser.pose.covariance = _covariance36(np.asarray(estimate.covariance)[3:, 3:])
+        self.laser_pub.publish(laser)
+
+        wheels = Float64MultiArray()
+        wheels.layout.dim = [
+            MultiArrayDimension(label=",".join(WHEEL_PARAMETER_ROWS), size=2, stride=6),
+            MultiArrayDimension(label=",".join(WHEEL_PARAMETER_COLUMNS), size=3, stride=3),
+        ]
+        wheels.data = wheel_parameters_data(estimate.values, estimate.sigma)
+        self.wheel_pub.publish(wheels)
+
+    def diagnostic_status(self) -> DiagnosticStatus:
+        with self.lock:
+            return self._diagnostic_status()
+
+    def _diagnostic_status(self) -> DiagnosticStatus:
+        level, message, values = diagnostic_status(self.calibrator, self.params, self.received,
+                                                   self.rejections)
+        level = DiagnosticStatus.OK if level == OK else DiagnosticStatus.WARN
+        status = DiagnosticStatus(level=level, name=f"{self.get_name()}: calibration",
+                                  message=message, hardware_id=self.get_name())
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        return status
+
+    def publish_diagnostics(self):
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [self.diagnostic_status()]
+        self.diag_pub.publish(array)
+
+    # --- services -----------------------------------------------------------------------
+    def _reset_window(self, request, response):
+        with self.lock:
+            self.calibrator.reset_window()
+        response.success, response.message = True, "window cleared"
+        self.get_logger().info("window reset")
+        return response
+
+    def _reset_calibration(self, request, response):
+        with self.lock:
+            self.calibrator.reset_calibration()
+        response.success, response.message = True, "calibration back to nominal"
+        self.get_logger().info("calibration reset to nominal")
+        return response
+
+    def current_params(self) -> SclamParams:
+        """The parameters with the current calibration in place of the nominal one."""
+        with self.lock:
+            values = dict(zip(CALIBRATION_KEYS, map(float, self.calibrator.calibration)))
+        return self.params.with_calibration(values)
+
+    def _save_calibration(self, request, response):
+        try:
+            header = "# written by sclam_node ~/save_calibration\n"
+            if self.calibrator.estimate is None:  # a reference read: no lock needed
+                header += "# no estimate yet: these are the nominal values\n"
+            self.current_params().write_yaml(self.calibration_file, self.get_name(), header)
+        except (OSError, ParamsError) as exc:
+            response.success, response.message = False, f"cannot write {self.calibration_file}: {exc}"
+            return response
+        response.success, response.message = True, f"calibration written to {self.calibration_file}"
+        self.get_logger().info(response.message)
+        return response
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node: Optional[SclamNode] = None
+    try:
+        node = SclamNode()
+        rclpy.spin(node)
+    except ParamsError as exc:
+        print(f"sclam_node: {exc}", file=sys.stderr)
+        return 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
