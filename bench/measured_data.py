@@ -1,9 +1,9 @@
-"""Calibration and residual diagnosis on the measured data sets (docs/measured_data.md).
+"""Calibration and residual diagnosis on the measured data sets (docs/real_data.md).
 
     .venv/bin/python bench/measured_data.py [DATA_DIR] [--out DIR] [--skip-mines] [--skip-optiodom]
 
 DATA_DIR defaults to ../shared/data beside the repository; a data set that is absent is
-skipped with a message (exit 0). Prints the tables quoted in docs/measured_data.md and in
+skipped with a message (exit 0). Prints the tables quoted in docs/real_data.md and in
 the README, and writes the figures to docs/figures/ (or --out).
 
 breezyslam-mines exp1/exp2: converted as logged and with each scan stamped 50–200 ms

@@ -115,7 +115,7 @@ def convert_breezyslam(src, out, storage="sqlite3", scan_delay: float = 0.0) -> 
     the scan is stamped that much earlier (recorded at the line's time, as a late message
     would be), and the encoder ticks, interpolated at the scan stamps by the frontend, stay
     at their own stamps. The logs give no delay; `sclam diagnose` finds one (selects
-    time_offset ≈ −0.12 to −0.14 s as logged, docs/measured_data.md)."""
+    time_offset ≈ −0.12 to −0.14 s as logged, docs/real_data.md)."""
     stamps, ticks, ranges = read_breezyslam(src)
     out = _prepare(out)
     increment = URG_FOV / (URG_BEAMS - 1)
