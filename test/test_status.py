@@ -1,0 +1,81 @@
+"""online/status.py: what the node reports and when it warns, decided without a ROS graph.
+
+The calibrator is the real OnlineCalibrator fed a simulated recording through the same calls
+the node's callbacks make (io.recording.iter_outputs), so the status is checked on a real
+estimate and compared with the simulator's truth.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from sclam_ros.core.inputs import Rejections
+from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
+from sclam_ros.io.recording import iter_outputs
+from sclam_ros.online.status import OK, WARN, diagnostic_status, observability, wheel_parameters_data
+from sclam_ros.online.window import OnlineCalibrator
+from sclam_ros.sim import simulate
+
+RECEIVED = {"joint_states": 0, "scan": 0}
+
+
+@pytest.fixture(scope="module")
+def tracked(tmp_path_factory):
+    out = tmp_path_factory.mktemp("status") / "bag"
+    truth = simulate(out, robot="powerbot", duration=60.0, seed=5)
+    params = SclamParams.from_yaml(out / "params.yaml")
+    calibrator = OnlineCalibrator(params)
+    for _ in iter_outputs(out, params, calibrator):
+        pass
+    return params, calibrator, truth
+
+
+def test_no_estimate_is_a_warning_asking_to_drive():
+    params = SclamParams()
+    calibrator = OnlineCalibrator(params)
+    level, message, values = diagnostic_status(calibrator, params, RECEIVED, Rejections())
+    assert level == WARN and "no estimate" in message
+    assert values["last_solve_converged"] == "n/a"
+    assert not any(key.endswith("_observable") for key in values)
+
+
+def test_status_of_a_calibrated_run(tracked):
+    params, calibrator, truth = tracked
+    assert calibrator.estimate is not None
+    rejections = Rejections()
+    rejections.add("scan_empty")
+    level, message, values = diagnostic_status(calibrator, params, RECEIVED, rejections)
+    observable = observability(calibrator.estimate, calibrator.nominal)
+    # A 60 s random drive with turns both ways excites every parameter.
+    assert all(observable.values()), observable
+    for key in CALIBRATION_KEYS:
+        assert values[f"{key}_observable"] == "true"
+        assert math.isfinite(float(values[key])) and float(values[f"{key}_sigma"]) > 0
+    assert values["rejected_scan_empty"] == 1 and values["rejected_total"] == 1
+    expected = OK if calibrator.unconverged_in_a_row < 3 else WARN
+    assert level == expected, message
+    # The reported radii are the truth within a few σ (the status shows the estimate).
+    for key in ODOMETRY_KEYS:
+        error = float(values[key]) - truth[key]
+        assert abs(error) < 4 * float(values[f"{key}_sigma"]), (key, error)
+
+
+def test_unobserved_parameters_are_named(tracked):
+    params, calibrator, _ = tracked
+    estimate = calibrator.estimate
+    saved = dict(estimate.sigma)
+    try:
+        estimate.sigma["laser_y"] = 1e3  # as uncertain as no data at all
+        level, message, values = diagnostic_status(calibrator, params, RECEIVED, Rejections())
+    finally:
+        estimate.sigma.update(saved)
+    assert level == WARN and "laser_y" in message
+    assert values["laser_y_observable"] == "false"
+
+
+def test_wheel_parameters_rows(tracked):
+    _, calibrator, _ = tracked
+    data = wheel_parameters_data(calibrator.estimate.values, calibrator.estimate.sigma)
+    values, sigmas = np.reshape(data, (2, 3))
+    np.testing.assert_array_equal(values, [calibrator.estimate.values[k] for k in ODOMETRY_KEYS])
+    np.testing.assert_array_equal(sigmas, [calibrator.estimate.sigma[k] for k in ODOMETRY_KEYS])
