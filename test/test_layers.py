@@ -19,8 +19,9 @@ ALLOWED = {
     "diagnosis": {"core", "frontend"},
     "io": {"core", "frontend", "online", "diagnosis"},
     "sim": {"core", "io"},
+    "fleet": {"core", "frontend", "online", "diagnosis", "io"},
     "ros": {"core", "frontend", "online", "diagnosis", "io", "sim"},
-    "cli": {"core", "frontend", "online", "diagnosis", "io", "sim", "ros"},
+    "cli": {"core", "frontend", "online", "diagnosis", "io", "sim", "ros", "fleet"},
 }
 # third-party families → the only layers that may import them
 RESTRICTED = {
@@ -28,6 +29,7 @@ RESTRICTED = {
     "std_msgs": {"ros"}, "geometry_msgs": {"ros"}, "diagnostic_msgs": {"ros"},
     "std_srvs": {"ros"}, "rcl_interfaces": {"ros"}, "tf2_msgs": {"ros"},
     "rosbags": {"io"},
+    "dask": {"fleet"}, "distributed": {"fleet"},
 }
 
 

@@ -32,6 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(sliding window) over the recording as fast as it can and write its "
                              "estimates over time: t (s, header stamp), the six parameters and "
                              "sigma_<name> for each")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="register the recording in this many time chunks in parallel on a "
+                             "Dask LocalCluster of as many worker processes, joined in one graph "
+                             "(for long recordings; default 1: sequential, no cluster)")
+    parser.add_argument("--scheduler", metavar="tcp://HOST:8786",
+                        help="register the chunks on this existing Dask cluster instead")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument("--verbose", action="store_true", help="log every solver iteration")
 
@@ -118,10 +124,25 @@ def _run_track(args, params, truth) -> int:
     return 0
 
 
+def _register(args, params, progress):
+    """The recording's keyframes: sequentially, or in time chunks on a Dask cluster."""
+    from sclam_ros.io.recording import Recording, read_recording
+
+    if args.workers <= 1 and not args.scheduler:
+        return read_recording(args.bag, params, progress=progress)
+    from sclam_ros.fleet.chunked import register_in_chunks
+    from sclam_ros.fleet.engine import dask_client
+
+    with dask_client(args.workers, args.scheduler, dashboard=not args.quiet) as client:
+        workers = len(client.scheduler_info()["workers"])
+        chunks = max(args.workers, workers)
+        keyframes, rejections = register_in_chunks(client, args.bag, params, chunks, progress)
+    return Recording(keyframes, rejections)
+
+
 def run(args) -> int:
     from sclam_ros.io.bag import BagError
     from sclam_ros.core.estimator import CalibrationError, calibrate_keyframes
-    from sclam_ros.io.recording import read_recording
     from sclam_ros.core.params import ParamsError, SclamParams, atomic_write_text
     from sclam_ros.cli.progress import ProgressBar
 
@@ -130,8 +151,7 @@ def run(args) -> int:
         truth = json.loads(Path(args.truth).read_text()) if args.truth else None
         if args.track:
             return _run_track(args, params, truth)
-        recording = read_recording(args.bag, params,
-                                   progress=ProgressBar("reading + scan matching", not args.quiet))
+        recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
         if recording.rejections.total():
             log.warning("rejected input (counted, not used): %s", recording.rejections)
         if not args.quiet:

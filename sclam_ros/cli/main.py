@@ -12,6 +12,7 @@ COMMANDS = {
     "play": "Publish a rosbag2 recording on the live ROS graph with its original timing",
     "convert": "Convert a published real-robot log (breezyslam, optiodom) to rosbag2 + params.yaml",
     "diagnose": "Test the calibrated model's residuals and select missing effects on held-out data",
+    "fleet": "Calibrate many recordings on Dask (local or a cluster); `fleet report`: history, changes",
 }
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Iterable, Iterator, Optional, Sequence
 
 import numpy as np
 from rosbags.highlevel import AnyReader, AnyReaderError
@@ -104,16 +104,24 @@ def _connections_for(reader: AnyReader, topics: Iterable[str], path) -> list:
     return [c for c in reader.connections if c.topic in wanted]
 
 
-def iter_messages(path, topics: Sequence[str]) -> Iterator[tuple[str, float, object]]:
-    """(topic, record_time_s, message) for ``topics``, in record-time order.
+def iter_messages(
+    path, topics: Sequence[str], start: Optional[float] = None, stop: Optional[float] = None
+) -> Iterator[tuple[str, float, object]]:
+    """(topic, record_time_s, message) for ``topics``, in record-time order; with ``start``
+    and/or ``stop`` (record time, s) only the messages in [start, stop).
 
     Raises BagError before yielding anything if a topic is missing from the bag.
     """
     if isinstance(topics, str):
         topics = [topics]
+    window = {}
+    if start is not None:
+        window["start"] = stamp_to_ns(start)
+    if stop is not None:
+        window["stop"] = stamp_to_ns(stop)
     with open_reader(path) as reader:
         connections = _connections_for(reader, topics, path)
-        for connection, timestamp_ns, raw in reader.messages(connections=connections):
+        for connection, timestamp_ns, raw in reader.messages(connections=connections, **window):
             msg = reader.deserialize(raw, connection.msgtype)
             yield connection.topic, timestamp_ns / NS_PER_S, msg
 
@@ -124,13 +132,19 @@ def topic_info(path) -> dict[str, tuple[str, int]]:
         return {name: (info.msgtype, info.msgcount) for name, info in reader.topics.items()}
 
 
-def duration_s(path) -> float:
-    """Record time from the first to the last message, in seconds (0 for an empty bag)."""
+def time_span(path) -> tuple[float, float]:
+    """(first, last) record time of the bag's messages in seconds; (0, 0) for an empty bag."""
     with open_reader(path) as reader:
         if reader.message_count == 0:
-            return 0.0
+            return 0.0, 0.0
         # rosbags' end_time is one nanosecond after the last message.
-        return max(0, reader.end_time - 1 - reader.start_time) / NS_PER_S
+        return reader.start_time / NS_PER_S, (reader.end_time - 1) / NS_PER_S
+
+
+def duration_s(path) -> float:
+    """Record time from the first to the last message, in seconds (0 for an empty bag)."""
+    first, last = time_span(path)
+    return max(0.0, last - first)
 
 
 # --- writing -------------------------------------------------------------------------

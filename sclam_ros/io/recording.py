@@ -24,13 +24,18 @@ class Recording:
     frontend: Frontend = None
 
 
-def iter_outputs(path, params, sink, progress=None):
+def iter_outputs(path, params, sink, progress=None, start=None, stop=None):
     """Feed a bag's messages in record order to `sink` (a Frontend or an OnlineCalibrator:
     anything with add_encoder, add_scan and rejections), through the same conversions the
-    node uses; yield what each call returns."""
+    node uses; yield what each call returns. `start`/`stop`: record-time window (s)."""
     topics = [params.joint_states_topic, params.scan_topic]
     total = sum(bag.topic_info(path).get(t, (None, 0))[1] for t in topics)
-    for seen, (topic, _, msg) in enumerate(bag.iter_messages(path, topics), 1):
+    if start is not None or stop is not None:  # a window: estimate its share of the messages
+        first, last = bag.time_span(path)
+        lo, hi = max(first, start or first), min(last, stop or last)
+        total = int(total * max(0.0, hi - lo) / max(last - first, 1e-9))
+    messages = bag.iter_messages(path, topics, start, stop)
+    for seen, (topic, _, msg) in enumerate(messages, 1):
         if progress is not None and seen % 500 == 0:
             progress(seen, total)
         if topic == params.joint_states_topic:
@@ -48,17 +53,17 @@ def iter_outputs(path, params, sink, progress=None):
         progress(total, total)
 
 
-def iter_keyframes(path, params, frontend=None, progress=None):
-    """Yield keyframes from a bag in record order."""
+def iter_keyframes(path, params, frontend=None, progress=None, start=None, stop=None):
+    """Yield keyframes from a bag (or its record-time window [start, stop)) in record order."""
     frontend = frontend or Frontend(params)
-    for keyframes in iter_outputs(path, params, frontend, progress):
+    for keyframes in iter_outputs(path, params, frontend, progress, start, stop):
         yield from keyframes
     yield from frontend.flush()
 
 
-def read_recording(path, params, progress=None) -> Recording:
+def read_recording(path, params, progress=None, start=None, stop=None) -> Recording:
     frontend = Frontend(params)
-    keyframes = list(iter_keyframes(path, params, frontend, progress))
+    keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop))
     return Recording(keyframes, frontend.rejections, frontend=frontend)
 
 
