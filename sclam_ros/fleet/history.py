@@ -105,16 +105,16 @@ def plot_history(results: list[dict], found: list[Change], path) -> None:
     fig, axes = plt.subplots(len(CALIBRATION_KEYS), 1, figsize=(9, 2.1 * len(CALIBRATION_KEYS)),
                              sharex=True)
     for ax, key in zip(axes, CALIBRATION_KEYS):
-        for robot, series in robots.items():
+        for number, (robot, series) in enumerate(robots.items()):
             # Recording order, not time: start times of simulated or re-stamped bags repeat.
             xs = [i for i, r in enumerate(series) if r["observable"][key]]
             ys = [human(key, series[i]["estimate"][key]) for i in xs]
             es = [human(key, series[i]["sigma"][key]) for i in xs]
-            line = ax.errorbar(xs, ys, yerr=es, marker="o", ms=3, capsize=2, label=robot)
+            ax.errorbar(xs, ys, yerr=es, marker="o", ms=3, capsize=2, label=robot,
+                        color=f"C{number % 10}")
             bad = [(x, y) for x, y in zip(xs, ys) if (series[x]["bag"], key) in flagged]
             if bad:
                 ax.plot(*zip(*bad), "o", ms=10, mfc="none", mec="red", mew=1.5)
-            line.lines[0].set_zorder(3)
         ax.set_ylabel(f"{key}\n[{'deg' if key == 'laser_yaw' else 'mm'}]", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1].set_xlabel("calibration number of the robot (in start-time order)")
