@@ -33,7 +33,7 @@ def tracked(tmp_path_factory):
 def test_no_estimate_is_a_warning_asking_to_drive():
     params = SclamParams()
     calibrator = OnlineCalibrator(params)
-    level, message, values = diagnostic_status(calibrator, params, RECEIVED, Rejections())
+    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
     assert level == WARN and "no estimate" in message
     assert values["last_solve_converged"] == "n/a"
     assert not any(key.endswith("_observable") for key in values)
@@ -44,7 +44,7 @@ def test_status_of_a_calibrated_run(tracked):
     assert calibrator.estimate is not None
     rejections = Rejections()
     rejections.add("scan_empty")
-    level, message, values = diagnostic_status(calibrator, params, RECEIVED, rejections)
+    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, rejections)
     observable = observability(calibrator.estimate, calibrator.nominal)
     # A 60 s random drive with turns both ways excites every parameter.
     assert all(observable.values()), observable
@@ -66,7 +66,7 @@ def test_unobserved_parameters_are_named(tracked):
     saved = dict(estimate.sigma)
     try:
         estimate.sigma["laser_y"] = 1e3  # as uncertain as no data at all
-        level, message, values = diagnostic_status(calibrator, params, RECEIVED, Rejections())
+        level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
     finally:
         estimate.sigma.update(saved)
     assert level == WARN and "laser_y" in message

@@ -31,17 +31,18 @@ def observability(estimate, nominal) -> dict:
     return {k: bool(estimate.sigma[k] < 0.5 * prior[i]) for i, k in enumerate(CALIBRATION_KEYS)}
 
 
-def diagnostic_status(calibrator, params, received, rejections):
-    """(level, message, values) of the node's diagnostics: level is OK or WARN, values an
-    ordered {key: value} of what a person checks on a running calibration."""
-    cal = calibrator
+def diagnostic_status(status, params, received, rejections):
+    """(level, message, values) of the node's diagnostics from a window.CalibratorStatus:
+    level is OK or WARN, values an ordered {key: value} of what a person checks on a running
+    calibration."""
+    cal = status
     estimate = cal.estimate
     values = {
-        "window_keyframes": len(cal.window),
-        "window_length_m": f"{cal.window_length():.3f}",
-        "window_distance_m": f"{params.window_distance:.3f}",
-        "window_fill_percent": f"{100.0 * cal.window_length() / params.window_distance:.1f}",
-        "pose_window_length_m": f"{cal.pose_window_length():.3f}",
+        "window_keyframes": cal.window_keyframes,
+        "window_length_m": f"{cal.window_length:.3f}",
+        "window_distance_m": f"{cal.window_distance:.3f}",
+        "window_fill_percent": f"{100.0 * cal.window_length / cal.window_distance:.1f}",
+        "pose_window_length_m": f"{cal.pose_window_length:.3f}",
         "radius_changes_detected": cal.radius_changes,
         "radius_change_chi2": f"{cal.change_statistic:.3g}",
         "solves": cal.solves,

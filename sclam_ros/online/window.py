@@ -94,6 +94,25 @@ class Estimate:
         return np.array([self.values[k] for k in CALIBRATION_KEYS])
 
 
+@dataclass(frozen=True)
+class CalibratorStatus:
+    """What is reported of an OnlineCalibrator, copied out of it: safe to hand to another
+    thread or process while the calibrator goes on (see online/process.py)."""
+
+    estimate: Optional[Estimate]
+    calibration: np.ndarray  # (6,) the values in use (estimate or nominal)
+    nominal: np.ndarray  # (6,)
+    window_keyframes: int
+    window_length: float  # m the radii are estimated from (poses + marginalised chunks)
+    pose_window_length: float  # m of it still held as poses
+    window_distance: float  # m, the configured radii window
+    radius_changes: int
+    change_statistic: float  # of the last solve (nan before the first test)
+    solves: int
+    skipped_scans: int
+    unconverged_in_a_row: int
+
+
 class KeyframeMerger:
     """graph.merge_keyframes, one keyframe at a time, with running indices.
 
@@ -237,6 +256,17 @@ class OnlineCalibrator:
     def window_length(self) -> float:
         """Metres of travel the radii are estimated from (poses + marginalised chunks)."""
         return self.pose_window_length() + self.history_length()
+
+    def status(self) -> CalibratorStatus:
+        return CalibratorStatus(
+            estimate=self.estimate, calibration=self.calibration.copy(),
+            nominal=self.nominal.copy(), window_keyframes=len(self.window),
+            window_length=self.window_length(), pose_window_length=self.pose_window_length(),
+            window_distance=float(self.params.window_distance),
+            radius_changes=self.radius_changes, change_statistic=self.change_statistic,
+            solves=self.solves, skipped_scans=self.skipped_scans,
+            unconverged_in_a_row=self.unconverged_in_a_row,
+        )
 
     def _trim(self) -> None:
         pose_limit = min(self.params.window_distance, POSE_WINDOW_DISTANCE)

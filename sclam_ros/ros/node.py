@@ -2,8 +2,9 @@
 
 The node is a thin shell around :class:`sclam_ros.online.window.OnlineCalibrator`: it declares the
 parameters of :class:`sclam_ros.core.params.SclamParams`, converts messages, and publishes what the
-calibrator knows. Window solves run on a thread of their own (online/solver_thread.py): the
-subscription callbacks only integrate ~/odom and append keyframes, so they never wait for one.
+calibrator knows. The calibrator (scan registration, window solves) runs in a child process
+(online/process.py): the subscription callbacks only integrate and publish ~/odom and hand the
+messages over, so odometry never waits for a registration or a solve.
 
 Subscribes
   ``joint_states_topic`` (sensor_msgs/JointState, reliable) and ``scan_topic``
@@ -43,7 +44,6 @@ from __future__ import annotations
 import gc
 import math
 import sys
-import threading
 from dataclasses import fields
 from typing import Optional
 
@@ -71,7 +71,7 @@ from sclam_ros.core.params import (
 )
 from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan
 from sclam_ros.online.odometry import OdometryIntegrator
-from sclam_ros.online.solver_thread import SolverThread
+from sclam_ros.online.process import CalibratorProcess
 from sclam_ros.online.status import (
     OK,
     WHEEL_PARAMETER_COLUMNS,
@@ -79,7 +79,6 @@ from sclam_ros.online.status import (
     diagnostic_status,
     wheel_parameters_data,
 )
-from sclam_ros.online.window import OnlineCalibrator
 
 DEFAULT_CALIBRATION_FILE = "sclam_calibration.yaml"
 # Parameters whose new value the node can use without a restart.
@@ -111,11 +110,7 @@ class SclamNode(Node):
         self._declare_parameters()
         self.params = self._read_params()
         self.calibration_file = self.get_parameter("calibration_file").value
-        self.rejections = Rejections()
-        # The callbacks (one executor thread) and the window solver thread share the
-        # calibrator; every access to it holds this lock. See online/solver_thread.py.
-        self.lock = threading.Lock()
-        self.calibrator = OnlineCalibrator(self.params, self.rejections, inline_solve=False)
+        self.rejections = Rejections()  # message conversion; the calibrator counts its own
         self.odometry = OdometryIntegrator(self.params)
         self.received = {"joint_states": 0, "scan": 0}
         self.estimates = 0
@@ -130,8 +125,9 @@ class SclamNode(Node):
                                  self._on_joint_state, 200)
         self.create_subscription(LaserScan, self.params.scan_topic, self._on_scan,
                                  qos_profile_sensor_data)
-        self.solver = SolverThread(self.calibrator, self.lock, self._publish_estimate,
-                                   self._solver_failed)
+        # Last: its reader thread publishes through the publishers made above.
+        self.calibrator = CalibratorProcess(self.params, self._publish_estimate,
+                                            self._calibrator_failed)
         self.create_service(Trigger, "~/reset_window", self._reset_window)
         self.create_service(Trigger, "~/reset_calibration", self._reset_calibration)
         self.create_service(Trigger, "~/save_calibration", self._save_calibration)
@@ -149,7 +145,7 @@ class SclamNode(Node):
         )
 
     def destroy_node(self):
-        self.solver.stop()
+        self.calibrator.stop()
         return super().destroy_node()
 
     # --- parameters ---------------------------------------------------------------------
@@ -192,11 +188,11 @@ class SclamNode(Node):
             if p.name == "calibration_file":
                 self.calibration_file = p.value
             elif p.name == "window_distance":
-                with self.lock:
-                    self.calibrator.set_window_distance(float(p.value))
+                self.calibrator.set_window_distance(float(p.value))
             elif p.name in defaults:
                 value = p.value if isinstance(defaults[p.name], str) else float(p.value)
                 setattr(self.params, p.name, value)
+                self.calibrator.set_param(p.name, value)
         return SetParametersResult(successful=True)
 
     # --- input --------------------------------------------------------------------------
@@ -213,10 +209,8 @@ class SclamNode(Node):
             self._reject(exc.reason, exc.detail)
             return
         try:
-            with self.lock:
-                self._publish_odometry(msg, stamp, left, right)
-                self.calibrator.add_encoder(stamp, left, right)
-                self._request_solve_if_due()
+            self._publish_odometry(msg, stamp, left, right)
+            self.calibrator.add_encoder(stamp, left, right)
         except Exception as exc:  # never let one message take the node down
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")
 
@@ -230,24 +224,18 @@ class SclamNode(Node):
             if not math.isfinite(scan.stamp):
                 self._reject("scan_non_finite_stamp", "LaserScan stamp is not finite")
                 return
-            with self.lock:
-                self.calibrator.add_scan(scan)
-                self._request_solve_if_due()
+            self.calibrator.add_scan(scan)
         except Exception as exc:
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")
 
-    def _request_solve_if_due(self):
-        if self.calibrator.solve_pending:
-            self.calibrator.solve_pending = False
-            self.solver.request()
-
-    def _solver_failed(self, exc: BaseException):
-        self._reject("internal_error", f"window solve: {type(exc).__name__}: {exc}")
+    def _calibrator_failed(self, message: str):
+        self._reject("internal_error", message)
 
     # --- output -------------------------------------------------------------------------
     def _odometry_calibration(self):
-        k = np.asarray(self.calibrator.calibration[:3], float)
-        estimate = self.calibrator.estimate
+        status = self.calibrator.status  # one reference: calibration and σ of one moment
+        k = np.asarray(status.calibration[:3], float)
+        estimate = status.estimate
         k_cov = estimate.covariance[:3, :3] if estimate is not None else np.zeros((3, 3))
         return k, k_cov
 
@@ -272,7 +260,7 @@ class SclamNode(Node):
         self.odom_pub.publish(odom)
 
     def _publish_estimate(self, estimate):
-        """~/laser_pose and ~/wheel_parameters (called on the solver thread)."""
+        """~/laser_pose and ~/wheel_parameters (called on the calibrator's reader thread)."""
         self.estimates += 1
         stamp = self.get_clock().now().to_msg()
         laser = PoseWithCovarianceStamped()
@@ -293,13 +281,16 @@ class SclamNode(Node):
         self.wheel_pub.publish(wheels)
 
     def diagnostic_status(self) -> DiagnosticStatus:
-        with self.lock:
-            return self._diagnostic_status()
-
-    def _diagnostic_status(self) -> DiagnosticStatus:
-        level, message, values = diagnostic_status(self.calibrator, self.params, self.received,
-                                                   self.rejections)
+        rejections = Rejections(self.rejections.counts + self.calibrator.rejections.counts)
+        level, message, values = diagnostic_status(self.calibrator.status, self.params,
+                                                   self.received, rejections)
+        # Messages handed to the calibrator process and not yet taken: stays near 0 when it
+        # keeps up with the sensors.
+        values["calibrator_backlog"] = self.calibrator.backlog
         level = DiagnosticStatus.OK if level == OK else DiagnosticStatus.WARN
+        if not self.calibrator.alive:
+            level = DiagnosticStatus.ERROR
+            message = self.calibrator.failure or "calibrator process not running"
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: calibration",
                                   message=message, hardware_id=self.get_name())
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
@@ -313,29 +304,26 @@ class SclamNode(Node):
 
     # --- services -----------------------------------------------------------------------
     def _reset_window(self, request, response):
-        with self.lock:
-            self.calibrator.reset_window()
+        self.calibrator.reset_window()
         response.success, response.message = True, "window cleared"
         self.get_logger().info("window reset")
         return response
 
     def _reset_calibration(self, request, response):
-        with self.lock:
-            self.calibrator.reset_calibration()
+        self.calibrator.reset_calibration()
         response.success, response.message = True, "calibration back to nominal"
         self.get_logger().info("calibration reset to nominal")
         return response
 
     def current_params(self) -> SclamParams:
         """The parameters with the current calibration in place of the nominal one."""
-        with self.lock:
-            values = dict(zip(CALIBRATION_KEYS, map(float, self.calibrator.calibration)))
+        values = dict(zip(CALIBRATION_KEYS, map(float, self.calibrator.calibration)))
         return self.params.with_calibration(values)
 
     def _save_calibration(self, request, response):
         try:
             header = "# written by sclam_node ~/save_calibration\n"
-            if self.calibrator.estimate is None:  # a reference read: no lock needed
+            if self.calibrator.estimate is None:
                 header += "# no estimate yet: these are the nominal values\n"
             self.current_params().write_yaml(self.calibration_file, self.get_name(), header)
         except (OSError, ParamsError) as exc:
