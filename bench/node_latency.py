@@ -1,34 +1,35 @@
-"""Acceptance 4 of the online node: latency, CPU share, memory, dropped encoder messages.
+"""Live latency of sclam_node over real DDS, beside a bare relay in the same run.
 
-Latency: a simulated recording is replayed in real time through sclam_node's own
-callbacks (SclamNode._on_joint_state / _on_scan, message conversion and publishing
-included, no DDS transport), on one thread as rclpy's single-threaded executor runs them,
-while the node's window-solver thread (sclam_ros/online/solver_thread.py) runs beside it, as in
-the running node. Each message is handed over at its record time (or as soon as the
-previous callback is done, if that is later: the wait counts as latency), so GIL and
-core sharing between callbacks and solver are in the numbers. Measured, in wall time:
-  - scan → keyframe: from a scan's arrival to the end of the callback that turned it into
-    a keyframe (the scan is registered in its own callback; the keyframe is finished by
-    the encoder callback that reaches its stamp, usually queued behind the registration);
-  - scan → estimate update: for the scans whose keyframe asked for a window solve, from
-    arrival to the publication of the first ~/wheel_parameters that includes them;
-  - encoder → ~/odom: from an encoder message's arrival to the end of its callback
-    (~/odom is published inside it, so this is an upper bound).
-Dropped encoder messages: arrivals that find 200 (the JointState queue depth) encoder
-messages arrived and not yet handled. CPU share: process CPU time (all threads) / duration.
+A simulated PowerBot recording (100 Hz encoders; 10 Hz / 360-beam or 40 Hz / 1080-beam laser)
+is published in real time on /joint_states and /scan with wall-clock stamps. Four processes,
+as on a robot:
+  - this driver: publishes, and notes the wall time of every publish;
+  - `sclam_node`, started as a user starts it (console script, --params-file);
+  - a bare rclpy relay: JointState in → nav_msgs/Odometry out with the same stamp, nothing else
+    (the floor: what rclpy and DDS cost on this machine);
+  - a listener: notes the wall time at which each /sclam/odom, /relay/odom and
+    /sclam/laser_pose message arrives.
+Matched by stamp:
+  - encoder → odom: from a JointState's publish to the arrival of the odometry with its stamp,
+    for sclam_node and for the relay (both go through the same two DDS hops);
+  - scan → estimate: from a scan's publish to the arrival of the first ~/laser_pose stamped with
+    it (the node stamps an estimate with its newest scan). Estimates come out at about 1 Hz (a
+    window solve every 2 keyframes of 0.5 s, scans matched at most every 0.09 s): the figure
+    is how late an estimate is, not how often;
+  - max backlog: the largest `calibrator_backlog` in /diagnostics (1 Hz) from 5 s after the
+    start: messages handed to the calibrator process and not yet taken. Near 0 means it keeps
+    up and never queues work.
+"answered" counts JointStates that got their odometry. The machine is named above the table.
 
-Memory: --hours of simulated data fed straight into the OnlineCalibrator, faster than
-real time; RSS sampled every simulated minute must stay flat.
-
-    python bench/node_latency.py                  # both rates, 120 s each; memory over 1 h
-    python bench/node_latency.py --hours 0        # skip the memory run
-    python bench/node_latency.py --rates 40 --hours 0 --components [--scan-max-beams 0]
+Run: .venv/bin/python bench/node_latency.py [--duration 90] [--rates 10 40]
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
+import json
 import os
+import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -42,250 +43,235 @@ from common import table  # noqa: E402
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 200))
 
-JOINT_QUEUE_DEPTH = 200  # the node's JointState subscription depth
+JOINT_QUEUE_DEPTH = 200  # as sclam_node's JointState subscription
 
 
-def rss_mb() -> float:
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith("VmRSS:"):
-                return float(line.split()[1]) / 1024.0
-    return float("nan")
+def _stamp_key(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 
 
-class ComponentTimer:
-    """Wall time of the node's pieces during a run (--components): each named function is
-    wrapped for the run, and the garbage collector's passes are timed by generation."""
-
-    PIECES = (  # (module, attribute path, name in the table)
-        ("sclam_ros.frontend.pipeline", "Frontend._register", "scan registration (matcher + point-to-line)"),
-        ("sclam_ros.online.window", "OnlineCalibrator.prepare_solve", "solve: build the problem (under the lock)"),
-        ("sclam_ros.online.solver_thread", "run_solve", "solve: LM + covariance"),
-        ("sclam_ros.online.window", "OnlineCalibrator.marginalise_chunks", "marginalise leaving keyframes"),
-    )
-
-    def __init__(self):
-        self.seconds = {}
-        self._restore = []
-
-    def __enter__(self):
-        import gc
-        import importlib
-
-        for module_name, path, label in self.PIECES:
-            owner = importlib.import_module(module_name)
-            *outer, attr = path.split(".")
-            for name in outer:
-                owner = getattr(owner, name)
-            original = getattr(owner, attr)
-            setattr(owner, attr, self._timed(original, label))
-            self._restore.append((owner, attr, original))
-        self._gc_start = None
-        gc.callbacks.append(self._on_gc)
-        return self
-
-    def __exit__(self, *exc):
-        import gc
-
-        gc.callbacks.remove(self._on_gc)
-        for owner, attr, original in reversed(self._restore):
-            setattr(owner, attr, original)
-
-    def _timed(self, function, label):
-        def timed(*args, **kwargs):
-            start = time.perf_counter()
-            try:
-                return function(*args, **kwargs)
-            finally:
-                self.seconds.setdefault(label, []).append(time.perf_counter() - start)
-        return timed
-
-    def _on_gc(self, phase, info):
-        if phase == "start":
-            self._gc_start = time.perf_counter()
-        elif self._gc_start is not None:
-            label = f"garbage collection, generation {info['generation']}"
-            self.seconds.setdefault(label, []).append(time.perf_counter() - self._gc_start)
-
-    def rows(self):
-        return [[label, len(v), f"{1e3 * np.median(v):.1f}", f"{1e3 * np.percentile(v, 90):.1f}",
-                 f"{1e3 * np.percentile(v, 99):.1f}", f"{1e3 * np.max(v):.1f}"]
-                for label, v in self.seconds.items()]
-
-
-def replay_through_node(bag, params_file, scan_max_beams=None, timer=None):
-    """Real-time replay; per message (is_scan, arrival, finish, frames made, solve asked,
-    skipped) and the (wall time, keyframe stamp) of every published estimate. With a
-    ComponentTimer, its pieces are timed during the replay."""
+def relay_main() -> None:
+    """The bare relay: JointState → Odometry, same stamp, in its own process."""
     import rclpy
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
 
-    from sclam_ros.io.bag import iter_messages, topic_info
-    from sclam_ros.ros.player import rclpy_class, rosbags_to_rclpy
-    from sclam_ros.ros.node import SclamNode
-    from sclam_ros.core.params import SclamParams
+    rclpy.init()
+    node = rclpy.create_node("relay")
+    publisher = node.create_publisher(Odometry, "/relay/odom", 50)
 
-    params = SclamParams.from_yaml(params_file)
-    if scan_max_beams is not None:
-        params.scan_max_beams = scan_max_beams
-    info = topic_info(bag)
-    topics = [params.joint_states_topic, params.scan_topic]
-    messages = [(topic, t, rosbags_to_rclpy(msg, rclpy_class(info[topic][0])))
-                for topic, t, msg in iter_messages(bag, topics)]
-    context = rclpy.Context()
-    rclpy.init(context=context)
+    def relay(msg):
+        out = Odometry()
+        out.header.stamp = msg.header.stamp
+        out.header.frame_id = "odom"
+        publisher.publish(out)
+
+    node.create_subscription(JointState, "/joint_states", relay, JOINT_QUEUE_DEPTH)
     try:
-        overrides = [rclpy.parameter.Parameter(k, value=v) for k, v in
-                     params.to_yaml_dict()["sclam"]["ros__parameters"].items()]
-        node = SclamNode(context=context, parameter_overrides=overrides)
-        published = []  # (wall time, stamp of the newest keyframe in the solve)
-        publish = node._publish_estimate
-
-        def timed_publish(estimate):
-            published.append((time.perf_counter(), estimate.stamp))
-            publish(estimate)
-
-        node.solver.on_estimate = timed_publish
-        # Preallocated: a growing list of tuples would be the bench's own garbage-collector
-        # load (a full collection walks every tuple), charged to the node's latency.
-        table_ = np.zeros((len(messages), 7))
-        with timer or contextlib.nullcontext():
-            t_first, wall0 = messages[0][1], time.perf_counter() + 0.5
-            cpu0 = time.process_time()
-            for row, (topic, t, msg) in enumerate(messages):
-                arrival = wall0 + (t - t_first)
-                while (now := time.perf_counter()) < arrival:
-                    time.sleep(min(arrival - now, 0.002))
-                is_scan = topic == params.scan_topic
-                frames_before = node.calibrator.frontend._count
-                requests_before = node.solver.requests
-                skipped_before = node.calibrator.skipped_scans
-                (node._on_scan if is_scan else node._on_joint_state)(msg)
-                table_[row] = (is_scan, arrival, time.perf_counter(),
-                               node.calibrator.frontend._count - frames_before,
-                               node.solver.requests > requests_before,
-                               node.calibrator.skipped_scans > skipped_before, _stamp(msg))
-            time.sleep(1.0)  # let the last solve finish
-            cpu = time.process_time() - cpu0
-        records = [(bool(r[0]), r[1], r[2], int(r[3]), bool(r[4]), bool(r[5]), r[6]) for r in table_]
-        node.destroy_node()
-    finally:
-        rclpy.try_shutdown(context=context)
-    return records, published, cpu
+        rclpy.spin(node)
+    except (KeyboardInterrupt, Exception):  # noqa: BLE001 - ended by the driver
+        pass
 
 
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+def listen_main(out: str, seconds: float) -> None:
+    """Arrival wall times of the node's and the relay's outputs, by stamp, to `out` (JSON)."""
+    import rclpy
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    rclpy.init()
+    node = rclpy.create_node("latency_listener")
+    arrivals = {"/sclam/odom": {}, "/relay/odom": {}, "/sclam/laser_pose": {}}
+    backlog = []  # (arrival, calibrator_backlog) of every /diagnostics message (1 Hz)
+
+    def note(topic):
+        def callback(msg):
+            arrivals[topic].setdefault(_stamp_key(msg.header.stamp), time.time())
+        return callback
+
+    node.create_subscription(Odometry, "/sclam/odom", note("/sclam/odom"), 1000)
+    node.create_subscription(Odometry, "/relay/odom", note("/relay/odom"), 1000)
+    latched = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    node.create_subscription(PoseWithCovarianceStamped, "/sclam/laser_pose",
+                             note("/sclam/laser_pose"), latched)
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    def diagnostics(msg):
+        for status in msg.status:
+            for kv in status.values:
+                if kv.key == "calibrator_backlog":
+                    backlog.append((time.time(), int(kv.value)))
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics, 10)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.1)
+    result = {t: list(a.items()) for t, a in arrivals.items()}
+    Path(out).write_text(json.dumps({**result, "backlog": backlog}))
 
 
-def latencies(records, published):
-    """scan → keyframe, scan → estimate update, encoder → odom (s); dropped encoders."""
-    pending_scans = []  # (arrival, stamp) of matched scans not yet turned into keyframes
-    scan_latency, solve_latency, odom_latency = [], [], []
-    pub_wall = np.array([w for w, _ in published])
-    pub_stamp = np.array([s for _, s in published])
-    joint_arrivals = np.array([r[1] for r in records if not r[0]])
-    joint_finishes = np.array([r[2] for r in records if not r[0]])
-    # Encoder messages arrived but not yet handled when each one arrives.
-    waiting = np.searchsorted(joint_arrivals, joint_arrivals, side="right") - np.searchsorted(
-        joint_finishes, joint_arrivals, side="right")
-    dropped = int(np.sum(waiting > JOINT_QUEUE_DEPTH))
-    for is_scan, arrival, finish, frames, asked, skipped, stamp in records:
-        if is_scan and not skipped:  # a skipped scan (above 10 Hz) has no estimate of its own
-            pending_scans.append((arrival, stamp))
-        elif not is_scan:
-            odom_latency.append(finish - arrival)
-        for _ in range(min(frames, len(pending_scans))):
-            scan_arrival, scan_stamp = pending_scans.pop(0)
-            scan_latency.append(finish - scan_arrival)
-            if asked:
-                covering = np.nonzero((pub_stamp >= scan_stamp - 1e-6) & (pub_wall >= finish))[0]
-                if len(covering):
-                    solve_latency.append(pub_wall[covering[0]] - scan_arrival)
-    return (np.array(scan_latency), np.array(solve_latency), np.array(odom_latency), dropped)
+def machine() -> str:
+    model = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores, {model}, {platform.system()} {platform.release()}"
 
 
-def memory_run(hours, workdir, scan_rate, beams, encoder_rate):
-    from sclam_ros.io.recording import iter_keyframes
+def _messages(bag, params):
+    """(record time, topic, rclpy message) of the recording, in record order."""
+    from sensor_msgs.msg import JointState, LaserScan
+
+    from sclam_ros.io import bag as bag_io
+
+    out = []
+    for topic, record_time, msg in bag_io.iter_messages(bag, [params.joint_states_topic,
+                                                              params.scan_topic]):
+        if topic == params.joint_states_topic:
+            ros = JointState(name=list(msg.name), position=list(msg.position))
+        else:
+            ros = LaserScan(angle_min=msg.angle_min, angle_max=msg.angle_max,
+                            angle_increment=msg.angle_increment, time_increment=msg.time_increment,
+                            scan_time=msg.scan_time, range_min=msg.range_min,
+                            range_max=msg.range_max, ranges=msg.ranges.tolist())
+        ros.header.frame_id = msg.header.frame_id
+        out.append((record_time, topic, ros))
+    return out
+
+
+def _wait_for_subscribers(publishers, counts, timeout=30.0):
+    end = time.monotonic() + timeout
+    while any(p.get_subscription_count() < n for p, n in zip(publishers, counts)):
+        if time.monotonic() > end:
+            raise RuntimeError("the node, relay or listener did not subscribe in time")
+        time.sleep(0.05)
+
+
+def run_row(bag, seconds, workdir):
+    """Publish `bag` live; (published {topic: {stamp: wall}}, arrivals {topic: {stamp: wall}})."""
+    import rclpy
+    from rclpy.time import Time
+    from sensor_msgs.msg import JointState, LaserScan
+
     from sclam_ros.core.params import SclamParams
-    from sclam_ros.sim import simulate
-    from sclam_ros.online.window import OnlineCalibrator
 
-    bag = workdir / "memory"
-    simulate(bag, robot="powerbot", duration=hours * 3600.0, seed=2, scan_rate=scan_rate,
-             beams=beams, encoder_rate=encoder_rate, overwrite=True)
     params = SclamParams.from_yaml(bag / "params.yaml")
-    calibrator = OnlineCalibrator(params)
-    samples, next_minute, first = [], 0.0, None
-    for kf in iter_keyframes(bag, params, calibrator.frontend):
-        calibrator.add_keyframes([kf])
-        first = kf.stamp if first is None else first
-        if kf.stamp - first >= next_minute:
-            samples.append((next_minute / 60.0, rss_mb(), len(calibrator.window)))
-            next_minute += 60.0
-    return samples
+    messages = _messages(bag, params)
+    arrivals_file = workdir / f"{bag.name}_arrivals.json"
+    me = [sys.executable, str(Path(__file__).resolve())]
+    children = [
+        subprocess.Popen(["sclam_node", "--ros-args", "--params-file", str(bag / "params.yaml"),
+                          "-p", f"calibration_file:={workdir / 'calibration.yaml'}"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
+        subprocess.Popen(me + ["relay"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
+    ]
+    listen_for = seconds + 25.0  # start-up and the tail included
+    listener = subprocess.Popen(me + ["listen", str(arrivals_file), str(listen_for)])
+    rclpy.init()
+    node = rclpy.create_node("latency_driver")
+    joints = node.create_publisher(JointState, params.joint_states_topic, JOINT_QUEUE_DEPTH)
+    from rclpy.qos import qos_profile_sensor_data
+
+    scans = node.create_publisher(LaserScan, params.scan_topic, qos_profile_sensor_data)
+    published = {params.joint_states_topic: {}, params.scan_topic: {}}
+    try:
+        _wait_for_subscribers([joints, scans], [2, 1])
+        time.sleep(3.0)  # the node's calibrator process and the listener's subscriptions
+        first = messages[0][0]
+        start = time.time()
+        for record_time, topic, msg in messages:
+            if record_time - first > seconds:
+                break
+            due = start + (record_time - first)
+            delay = due - time.time()
+            if delay > 0:
+                time.sleep(delay)
+            msg.header.stamp = Time(nanoseconds=int(due * 1e9)).to_msg()
+            published[topic][_stamp_key(msg.header.stamp)] = time.time()
+            (joints if topic == params.joint_states_topic else scans).publish(msg)
+        listener.wait(timeout=listen_for + 30.0)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+        for child in children:
+            child.terminate()
+        for child in children:
+            child.wait(timeout=30)
+    raw = json.loads(arrivals_file.read_text())
+    backlog = raw.pop("backlog")
+    arrivals = {t: {int(k): v for k, v in a} for t, a in raw.items()}
+    # Steady state: from 5 s after the first message (the calibrator process may still be
+    # importing its libraries when the first messages arrive; they wait in its inbox).
+    start = min(published[params.joint_states_topic].values()) + 5.0
+    backlog = [b for t, b in backlog if t > start]
+    return published, arrivals, backlog, params
+
+
+def latencies(sent: dict, received: dict, tolerance_ns: int = 0) -> np.ndarray:
+    """Arrival − publish of every message that arrived, matched by stamp (within
+    `tolerance_ns`: the node's estimate stamps went through a float of seconds)."""
+    if not tolerance_ns:
+        return np.array([received[k] - sent[k] for k in sent if k in received])
+    keys = np.array(sorted(sent))
+    out = []
+    for key, arrival in received.items():
+        i = int(np.clip(np.searchsorted(keys, key), 1, len(keys) - 1))
+        nearest = keys[i - 1] if abs(keys[i - 1] - key) < abs(keys[i] - key) else keys[i]
+        if abs(int(nearest) - key) <= tolerance_ns:
+            out.append(arrival - sent[int(nearest)])
+    return np.array(out)
+
+
+def ms(values, q) -> str:
+    return f"{1e3 * np.percentile(values, q):.1f}" if len(values) else "n/a"
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--duration", type=float, default=120.0, help="s per latency run")
-    parser.add_argument("--hours", type=float, default=1.0, help="simulated hours for the memory run")
+    if len(sys.argv) > 1 and sys.argv[1] == "relay":
+        return relay_main()
+    if len(sys.argv) > 1 and sys.argv[1] == "listen":
+        return listen_main(sys.argv[2], float(sys.argv[3]))
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--duration", type=float, default=90.0, help="s published per row")
     parser.add_argument("--rates", type=float, nargs="+", default=[10.0, 40.0],
-                        help="scan rates to run: 10 (360 beams), 40 (1080 beams)")
-    parser.add_argument("--scan-max-beams", type=float, default=None,
-                        help="override the parameter (default: the recording's params.yaml)")
-    parser.add_argument("--components", action="store_true",
-                        help="also time the node's pieces (registration, solve, GC) per run")
+                        help="scan rates: 10 (360 beams) and/or 40 (1080 beams)")
     args = parser.parse_args()
     from sclam_ros.sim import simulate
 
     workdir = Path(tempfile.mkdtemp(prefix="sclam_latency_"))
     rows = []
-    components = []
-    for scan_rate, beams, encoder_rate in ((10.0, 360, 100.0), (40.0, 1080, 100.0)):
+    for scan_rate, beams in ((10.0, 360), (40.0, 1080)):
         if scan_rate not in args.rates:
             continue
         bag = workdir / f"s{scan_rate:g}_b{beams}"
-        simulate(bag, robot="powerbot", duration=args.duration, seed=4, scan_rate=scan_rate,
-                 beams=beams, encoder_rate=encoder_rate, overwrite=True)
-        timer = ComponentTimer() if args.components else None
-        records, published, cpu = replay_through_node(bag, bag / "params.yaml",
-                                                      args.scan_max_beams, timer)
-        if timer is not None:
-            components += [[f"{scan_rate:g} Hz / {beams}"] + row for row in timer.rows()]
-        scan, solve, odom, dropped = latencies(records, published)
-        period = 1.0 / scan_rate
-        skipped = sum(r[5] for r in records)
-        ms = lambda x, q: f"{1e3 * np.percentile(x, q):.1f}" if len(x) else "n/a"  # noqa: E731
-        p99 = np.percentile(solve, 99)  # the estimate update: the slowest kind of scan
-        duration = records[-1][1] - records[0][1]
-        rows.append([
-            f"{scan_rate:g} Hz / {beams}", f"{encoder_rate:g} Hz", len(scan), skipped,
-            ms(scan, 50), ms(scan, 99), len(solve), ms(solve, 50), ms(solve, 99),
-            f"{1e3 * period:.0f}",
-            "yes" if p99 < period else f"NO (+{1e3 * (p99 - period):.0f} ms)",
-            ms(odom, 50), ms(odom, 99), f"{100 * cpu / duration:.0f} %", dropped,
-        ])
+        simulate(bag, robot="powerbot", duration=args.duration + 5.0, seed=4, scan_rate=scan_rate,
+                 beams=beams, encoder_rate=100.0, overwrite=True)
+        published, arrivals, backlog, params = run_row(bag, args.duration, workdir)
+        joint_sent = published[params.joint_states_topic]
+        node = latencies(joint_sent, arrivals["/sclam/odom"])
+        relay = latencies(joint_sent, arrivals["/relay/odom"])
+        estimate = latencies(published[params.scan_topic], arrivals["/sclam/laser_pose"], 1000)
+        period = 1e3 / scan_rate
+        rows.append([f"{scan_rate:g} Hz / {beams}", len(joint_sent),
+                     f"{len(node)} / {len(relay)}",
+                     ms(relay, 50), ms(node, 50), f"{1e3 * (np.percentile(node, 50) - np.percentile(relay, 50)):+.1f}",
+                     ms(relay, 99), ms(node, 99), f"{1e3 * (np.percentile(node, 99) - np.percentile(relay, 99)):+.1f}",
+                     ms(node, 100), f"{len(estimate) / args.duration:.1f}", ms(estimate, 50),
+                     ms(estimate, 99), f"{period:.0f}", max(backlog, default="n/a")])
         print(f"done {scan_rate:g} Hz / {beams} beams", flush=True)
-    print(f"\nlatency through sclam_node's callbacks and solver thread, real time, "
-          f"{args.duration:.0f} s of simulated PowerBot per row (ms)")
-    print(table(rows, ["scans", "encoders", "scans matched", "skipped (>10 Hz)",
-                       "scan→keyframe p50", "p99", "solves", "scan→estimate update p50", "p99",
-                       "scan period", "update p99 < period",
-                       "encoder→odom p50", "p99", "CPU of one core", "encoder msgs dropped"]))
-    if components:
-        print("\nthe node's pieces during those runs (ms of wall time)")
-        print(table(components, ["scans", "piece", "calls", "p50", "p90", "p99", "max"]))
-    if args.hours > 0:
-        samples = memory_run(args.hours, workdir, 10.0, 360, 100.0)
-        print(f"\nmemory: {args.hours:g} h of simulated data (10 Hz / 360 beams, 100 Hz encoders) "
-              "fed to the OnlineCalibrator; RSS every simulated minute")
-        every = max(1, len(samples) // 12)
-        print(table([[f"{m:.0f}", f"{r:.0f}", k] for m, r, k in samples[::every] + samples[-1:]],
-                    ["minute", "RSS MB", "window keyframes"]))
-        rss = np.array([r for _, r, _ in samples])
-        half = len(rss) // 2
-        print(f"RSS growth over the second half: {rss[-1] - rss[half]:+.1f} MB "
-              f"(first half: {rss[half] - rss[0]:+.1f} MB)")
+    print(f"\nmachine: {machine()}")
+    print(f"live over DDS (Fast DDS), {args.duration:.0f} s per row, 100 Hz encoders; ms")
+    print(table(rows, ["laser", "JointStates", "answered node / relay",
+                       "relay p50", "node p50", "Δ p50", "relay p99", "node p99", "Δ p99",
+                       "node max", "estimates/s", "scan→estimate p50", "p99", "scan period",
+                       "max backlog"]))
 
 
 if __name__ == "__main__":

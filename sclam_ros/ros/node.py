@@ -15,7 +15,8 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
                          the wheel noise accumulated along the path plus the calibration's own
                          uncertainty propagated through the whole path.
   ``~/laser_pose``       geometry_msgs/PoseWithCovarianceStamped, the laser on ``base_frame``;
-                         covariance slots x, y, yaw (z, roll, pitch are fixed by the planar model).
+                         covariance slots x, y, yaw (z, roll, pitch are fixed by the planar model);
+                         stamped with the time of the newest scan the estimate includes.
   ``~/wheel_parameters`` std_msgs/Float64MultiArray, a 2 × 3 row-major matrix::
 
                              [r_l,   r_r,   b,            # row "value"  (m)
@@ -54,6 +55,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
+from rclpy.time import Time
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -262,9 +264,10 @@ class SclamNode(Node):
     def _publish_estimate(self, estimate):
         """~/laser_pose and ~/wheel_parameters (called on the calibrator's reader thread)."""
         self.estimates += 1
-        stamp = self.get_clock().now().to_msg()
         laser = PoseWithCovarianceStamped()
-        laser.header.stamp = stamp
+        # The data's time, not the publication's: the calibration as of the newest scan in
+        # the solved window (REP-103 stamps; lets a subscriber see how old the estimate is).
+        laser.header.stamp = Time(nanoseconds=int(round(estimate.stamp * 1e9))).to_msg()
         laser.header.frame_id = self.params.base_frame
         laser.pose.pose.position.x = float(estimate.values["laser_x"])
         laser.pose.pose.position.y = float(estimate.values["laser_y"])
