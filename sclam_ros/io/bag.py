@@ -12,6 +12,8 @@ split recordings stay complete; a lone storage file is read on its own). ROS 1
 """
 from __future__ import annotations
 
+import logging
+from collections import Counter
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterable, Iterator, Optional, Sequence
@@ -28,6 +30,8 @@ STORAGE_SUFFIXES = (".db3", ".mcap")
 # rosbag2 format version written; 9 is what Jazzy's ros2 bag writes.
 ROSBAG2_VERSION = 9
 NS_PER_S = 1_000_000_000
+
+log = logging.getLogger("sclam")
 
 
 class BagError(ValueError):
@@ -104,26 +108,105 @@ def _connections_for(reader: AnyReader, topics: Iterable[str], path) -> list:
     return [c for c in reader.connections if c.topic in wanted]
 
 
+class ReadCounts:
+    """What :func:`iter_messages` met, per topic: messages ``read`` (yielded) and ``corrupt``
+    (skipped: they did not deserialize), and how often the storage itself was unreadable."""
+
+    def __init__(self):
+        self.read: Counter = Counter()
+        self.corrupt: Counter = Counter()
+        self.unreadable = 0  # storage errors stepped over (their messages are lost uncounted)
+
+    def as_dict(self) -> dict:
+        """{topic: {"read": n, "corrupt": m}} for every topic seen."""
+        return {t: {"read": self.read[t], "corrupt": self.corrupt[t]}
+                for t in sorted(set(self.read) | set(self.corrupt))}
+
+
+# A storage error ends rosbags' generator; reading restarts after the last good message,
+# stepping further ahead each time the same bad part fails again (first by SKIP_NS).
+SKIP_NS = 10_000_000  # 10 ms: less than one scan period, so a resume loses little
+MAX_RESUMES = 40  # bounded: a bag that fails this often is garbage after every step
+
+
+def _raw_messages(reader: AnyReader, connections, start, stop, counts: ReadCounts, path):
+    """reader.messages(...), restarted past unreadable parts of the storage (a corrupt
+    sqlite page, random bytes in an mcap chunk) instead of ending at the first one."""
+    begin, skip, last = start, SKIP_NS, None
+    for _ in range(MAX_RESUMES):
+        progressed = False
+        try:
+            for item in reader.messages(connections=connections, start=begin, stop=stop):
+                last, progressed = item[1], True
+                yield item
+            return
+        # rosbags raises whatever its storage layer meets (OverflowError, ReaderError,
+        # sqlite errors, ...): all mean "these bytes are not a bag", never a bug here.
+        except Exception as exc:  # noqa: BLE001
+            if not counts.unreadable:
+                log.warning("bag %s: storage unreadable after t = %.3f s (%s: %s); reading "
+                            "resumes after the bad part", path,
+                            (last or reader.start_time) / NS_PER_S, type(exc).__name__, exc)
+            counts.unreadable += 1
+            if progressed:  # retry just after the last good message
+                begin, skip = last + 1, SKIP_NS
+            else:  # failed again before any message: step further ahead each time
+                begin, skip = (reader.start_time if begin is None else begin) + skip, 2 * skip
+            if begin >= reader.end_time or (stop is not None and begin >= stop):
+                break
+    log.warning("bag %s: storage unreadable %d time(s); the messages there are lost, "
+                "reading stopped at t = %.3f s", path, counts.unreadable,
+                min(begin, reader.end_time) / NS_PER_S)
+
+
 def iter_messages(
-    path, topics: Sequence[str], start: Optional[float] = None, stop: Optional[float] = None
+    path, topics: Sequence[str], start: Optional[float] = None, stop: Optional[float] = None,
+    counts: Optional[ReadCounts] = None,
 ) -> Iterator[tuple[str, float, object]]:
     """(topic, record_time_s, message) for ``topics``, in record-time order; with ``start``
     and/or ``stop`` (record time, s) only the messages in [start, stop).
 
-    Raises BagError before yielding anything if a topic is missing from the bag.
+    Raises BagError before yielding anything if a topic is missing from the bag. A message
+    that does not deserialize is skipped and counted in ``counts`` (a :class:`ReadCounts`);
+    an unreadable part of the storage is stepped over. Both are warned about, and so is a
+    complete read that returns fewer messages than the bag's metadata announces.
     """
     if isinstance(topics, str):
         topics = [topics]
-    window = {}
-    if start is not None:
-        window["start"] = stamp_to_ns(start)
-    if stop is not None:
-        window["stop"] = stamp_to_ns(stop)
+    counts = counts if counts is not None else ReadCounts()
+    start_ns = None if start is None else stamp_to_ns(start)
+    stop_ns = None if stop is None else stamp_to_ns(stop)
     with open_reader(path) as reader:
         connections = _connections_for(reader, topics, path)
-        for connection, timestamp_ns, raw in reader.messages(connections=connections, **window):
-            msg = reader.deserialize(raw, connection.msgtype)
-            yield connection.topic, timestamp_ns / NS_PER_S, msg
+        raw = _raw_messages(reader, connections, start_ns, stop_ns, counts, path)
+        for connection, timestamp_ns, data in raw:
+            topic = connection.topic
+            try:
+                msg = reader.deserialize(data, connection.msgtype)
+            except Exception as exc:  # noqa: BLE001 - corrupt bytes raise assorted errors
+                if not counts.corrupt[topic]:
+                    log.warning("bag %s: corrupt %s message at t = %.3f s skipped (%s); further "
+                                "ones are counted", path, topic, timestamp_ns / NS_PER_S, exc)
+                counts.corrupt[topic] += 1
+                continue
+            counts.read[topic] += 1
+            yield topic, timestamp_ns / NS_PER_S, msg
+        if start is None and stop is None:
+            _warn_if_short(reader, topics, counts, path)
+    for topic, n in sorted(counts.corrupt.items()):
+        if n > 1:  # the first one was warned about as it came
+            log.warning("bag %s: %d corrupt %s message(s) skipped", path, n, topic)
+
+
+def _warn_if_short(reader: AnyReader, topics, counts: ReadCounts, path) -> None:
+    """A reader that silently returns fewer messages than the metadata announces (random
+    bytes in an mcap chunk can make it drop a whole chunk) is worth a warning."""
+    for topic in topics:
+        announced = reader.topics[topic].msgcount
+        found = counts.read[topic] + counts.corrupt[topic]
+        if found < announced:
+            log.warning("bag %s: topic %s: the metadata announces %d messages, the reader "
+                        "returned %d", path, topic, announced, found)
 
 
 def topic_info(path) -> dict[str, tuple[str, int]]:
@@ -132,19 +215,27 @@ def topic_info(path) -> dict[str, tuple[str, int]]:
         return {name: (info.msgtype, info.msgcount) for name, info in reader.topics.items()}
 
 
-def time_span(path) -> tuple[float, float]:
-    """(first, last) record time of the bag's messages in seconds; (0, 0) for an empty bag."""
+def _time_span_ns(path) -> tuple[int, int]:
+    """(first, last) record time of the bag's messages in integer ns; (0, 0) for an empty bag."""
     with open_reader(path) as reader:
         if reader.message_count == 0:
-            return 0.0, 0.0
+            return 0, 0
         # rosbags' end_time is one nanosecond after the last message.
-        return reader.start_time / NS_PER_S, (reader.end_time - 1) / NS_PER_S
+        return reader.start_time, reader.end_time - 1
+
+
+def time_span(path) -> tuple[float, float]:
+    """(first, last) record time of the bag's messages in seconds; (0, 0) for an empty bag."""
+    first, last = _time_span_ns(path)
+    return first / NS_PER_S, last / NS_PER_S
 
 
 def duration_s(path) -> float:
-    """Record time from the first to the last message, in seconds (0 for an empty bag)."""
-    first, last = time_span(path)
-    return max(0.0, last - first)
+    """Record time from the first to the last message, in seconds (0 for an empty bag).
+
+    Subtracted in integer nanoseconds: two float stamps near 1.7e9 s differ by ~0.2 µs steps."""
+    first, last = _time_span_ns(path)
+    return max(0, last - first) / NS_PER_S
 
 
 # --- writing -------------------------------------------------------------------------
