@@ -94,8 +94,10 @@ def test_live_node_ends_where_the_offline_track_ends(tmp_path):
                 last = diagnostics[-3:]
             # Nothing new over three diagnostics (1 Hz, wall clock): the node is idle.
             keys = ("joint_states_received", "scans_received", "solves")
+            # ... and the calibrator process has taken everything handed to it.
             return len(last) == 3 and all(
-                d.get(k) == last[0].get(k) for d in last for k in keys)
+                d.get(k) == last[0].get(k) for d in last for k in keys) and all(
+                d.get("calibrator_backlog") == "0" for d in last)
 
         wait_for(node_done, what="sclam_node to process the whole bag")
         with lock:
