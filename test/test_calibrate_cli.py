@@ -83,7 +83,7 @@ def test_bad_params_file_gives_clear_error(tmp_path, capsys):
     (tmp_path / "p.yaml").write_text("sclam:\n  ros__parameters:\n    wheel_base: -1.0\n")
     rc = main(["calibrate", str(tmp_path), "--params", str(tmp_path / "p.yaml")])
     assert rc == 2
-    assert "wheel_base must be a finite number > 0" in capsys.readouterr().err
+    assert "wheel_base must be a number in (0, 20]" in capsys.readouterr().err
 
 
 def test_missing_bag_gives_clear_error(tmp_path, capsys):

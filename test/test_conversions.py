@@ -74,6 +74,26 @@ def test_laser_scan_keeps_geometry_and_all_ranges():
     assert scan.angle_increment == -0.5 and scan.time_increment == pytest.approx(1e-4)
 
 
+@pytest.mark.parametrize("angle_min, angle_max, increment, n, reason", [
+    (np.nan, 1.0, 0.5, 5, "scan_non_finite_angles"),
+    (-1.0, 1.0, np.inf, 5, "scan_non_finite_angles"),
+    (-1.0, -1.0, 0.0, 5, "scan_zero_angle_increment"),
+    (-1.0, 1.0, 0.5, 65, "scan_ranges_angles_mismatch"),  # 60 more ranges than described
+    (-1.0, 1.0, -0.5, 5, "scan_ranges_angles_mismatch"),  # a mirrored scan
+    (-1.0, 3999.0, 1000.0, 5, "scan_angles_span_over_a_turn"),  # beams wrap round
+])
+def test_laser_scan_with_impossible_geometry_is_rejected(angle_min, angle_max, increment, n, reason):
+    msg = LaserScanBag(
+        header=Header(stamp=Time(sec=3, nanosec=0), frame_id="laser"), angle_min=angle_min,
+        angle_max=angle_max, angle_increment=increment, time_increment=0.0, scan_time=0.1,
+        range_min=0.1, range_max=10.0, ranges=np.ones(n, np.float32),
+        intensities=np.zeros(0, np.float32),
+    )
+    with pytest.raises(MessageRejected) as err:
+        laser_scan_to_scan(msg)
+    assert err.value.reason == reason
+
+
 def test_rclpy_messages_are_accepted_by_duck_typing():
     """The same functions on real rclpy message classes (array.array fields, builtin Time)."""
     pytest.importorskip("rclpy")
@@ -91,7 +111,7 @@ def test_rclpy_messages_are_accepted_by_duck_typing():
 
     ls = LaserScan()
     ls.header.stamp.sec, ls.header.frame_id = 4, "base_scan"
-    ls.angle_min, ls.angle_increment = -0.5, 0.25
+    ls.angle_min, ls.angle_max, ls.angle_increment = -0.5, 0.5, 0.25
     ls.range_min, ls.range_max = 0.1, 12.0
     ls.ranges = [1.0, float("inf"), 2.0, 0.0, 3.0]
     scan = laser_scan_to_scan(ls)

@@ -133,4 +133,4 @@ def test_bad_source_is_a_clear_error(tmp_path):
     bad.write_text("1,2,3\n4,5,6\n")
     with pytest.raises(ConvertError, match="6 columns"):
         convert_optiodom(bad, tmp_path / "out")
-    assert cli.main(["convert", "optiodom", str(bad), str(tmp_path / "out2")]) == 1
+    assert cli.main(["convert", "optiodom", str(bad), str(tmp_path / "out2")]) == 2

@@ -347,6 +347,15 @@ def test_bad_input_is_counted_and_survived(graph, recording):
     feeder.publish(params.joint_states_topic, wrong_names)
     feeder.publish(params.joint_states_topic, nan_positions)
     feeder.publish(params.scan_topic, empty_scan)
+    # Beam geometry no scanner has: every beam in one direction; NaN angles.
+    zero_increment = LaserScan(angle_min=-1.0, angle_max=-1.0, angle_increment=0.0,
+                               ranges=[2.0] * 10, range_max=10.0)
+    zero_increment.header = empty_scan.header
+    nan_angles = LaserScan(angle_min=float("nan"), angle_max=1.0, angle_increment=0.1,
+                           ranges=[2.0] * 10, range_max=10.0)
+    nan_angles.header = empty_scan.header
+    feeder.publish(params.scan_topic, zero_increment)
+    feeder.publish(params.scan_topic, nan_angles)
     # Stamps going backwards, and a clock jump of an hour back: the old data again.
     feeder.feed(good[50:60])
     for topic, msg in good[:40]:
@@ -360,7 +369,9 @@ def test_bad_input_is_counted_and_survived(graph, recording):
     assert values["rejected_joint_state_missing_joint"] == "1"
     assert values["rejected_joint_state_non_finite"] == "1"
     assert values["rejected_scan_empty"] == "1"
-    assert int(values["rejected_total"]) >= 3 + 1  # + stamps going backwards
+    assert values["rejected_scan_zero_angle_increment"] == "1"
+    assert values["rejected_scan_non_finite_angles"] == "1"
+    assert int(values["rejected_total"]) >= 5 + 1  # + stamps going backwards
     assert "rejected_internal_error" not in values
     odom = graph.messages("/sclam/odom")
     assert odom and all(math.isfinite(m.pose.pose.position.x) for m in odom)

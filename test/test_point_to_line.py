@@ -56,3 +56,6 @@ def test_too_few_points_fall_back_to_the_initial_guess():
     z0 = np.array([0.01, 0.0, 0.0])
     z, used = point_to_line.refine(reference, line[:5], z0)
     assert used == 0 and np.allclose(z, z0)
+    # A scan without lines has no reference at all: the initial guess stands.
+    z, used = point_to_line.refine(None, line, z0)
+    assert used == 0 and np.allclose(z, z0)

@@ -11,7 +11,6 @@ import argparse
 import json
 import logging
 import math
-import sys
 from pathlib import Path
 
 from sclam_ros.core.params import CALIBRATION_KEYS
@@ -105,15 +104,15 @@ def _run_track(args, params, truth) -> int:
 
     from sclam_ros.cli.progress import ProgressBar
 
+    from sclam_ros.core.estimator import CalibrationError
+
     rows, calibrator = track(args.bag, params, ProgressBar("online calibration", not args.quiet))
-    if calibrator.rejections.total():
-        log.warning("rejected input (counted, not used): %s", calibrator.rejections)
-    write_track(args.track, rows)
+    _warn_about_input(calibrator.rejections, calibrator.frontend)
     estimate = calibrator.estimate
-    if estimate is None:
-        print("sclam calibrate: error: the online calibrator produced no estimate (too little "
-              "motion, or no scans paired with encoder data)", file=sys.stderr)
-        return 2
+    if estimate is None:  # refused before writing: exit status 2 leaves no output behind
+        raise CalibrationError("the online calibrator produced no estimate (too little motion, "
+                               "or no scans paired with encoder data)")
+    write_track(args.track, rows)
     print(f"online: {len(rows)} window solves, window {estimate.window_distance:.1f} m "
           f"({estimate.keyframes_in_window} keyframes); last estimate at t = {estimate.stamp:.3f} s")
     shown = SimpleNamespace(estimate=estimate.values, sigma=estimate.sigma,
@@ -140,30 +139,37 @@ def _register(args, params, progress):
     return Recording(keyframes, rejections)
 
 
+def _warn_about_input(rejections, frontend) -> None:
+    """Say what the data path dropped or could not refine, so nothing is lost silently."""
+    if rejections.total():
+        log.warning("rejected input (counted, not used): %s", rejections)
+    unrefined = frontend.refined_matcher.unrefined if frontend is not None else {}
+    if unrefined.get("no_lines"):
+        log.warning("%d scan match(es) kept KISS-ICP's motion without the point-to-line "
+                    "refinement: too few points on lines (no walls in view?); such motions "
+                    "can be slightly short", unrefined["no_lines"])
+
+
 def run(args) -> int:
-    from sclam_ros.io.bag import BagError
-    from sclam_ros.core.estimator import CalibrationError, calibrate_keyframes
-    from sclam_ros.core.params import ParamsError, SclamParams, atomic_write_text
+    """Input errors (ParamsError, BagError, CalibrationError, ...) propagate to
+    sclam_ros.cli.main, which turns each into one line and exit status 2."""
+    from sclam_ros.core.estimator import calibrate_keyframes
+    from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.progress import ProgressBar
 
-    try:
-        params = SclamParams.from_yaml(args.params)
-        truth = json.loads(Path(args.truth).read_text()) if args.truth else None
-        if args.track:
-            return _run_track(args, params, truth)
-        recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
-        if recording.rejections.total():
-            log.warning("rejected input (counted, not used): %s", recording.rejections)
-        if not args.quiet:
-            log.info("solving the graph: %d scans", len(recording.keyframes))
-        result = calibrate_keyframes(
-            recording.keyframes, params, recording.rejections,
-            progress=(lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost))
-            if args.verbose else None,
-        )
-    except (ParamsError, BagError, CalibrationError, FileNotFoundError, json.JSONDecodeError) as exc:
-        print(f"sclam calibrate: error: {exc}", file=sys.stderr)
-        return 2
+    params = SclamParams.from_yaml(args.params)
+    truth = json.loads(Path(args.truth).read_text()) if args.truth else None
+    if args.track:
+        return _run_track(args, params, truth)
+    recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
+    _warn_about_input(recording.rejections, recording.frontend)
+    if not args.quiet:
+        log.info("solving the graph: %d scans", len(recording.keyframes))
+    result = calibrate_keyframes(
+        recording.keyframes, params, recording.rejections,
+        progress=(lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost))
+        if args.verbose else None,
+    )
     print(f"{result.scans_used} scans over {result.duration_s:.1f} s; "
           f"solver: {result.iterations} iterations, converged: {result.converged}")
     print(format_table(result, truth))

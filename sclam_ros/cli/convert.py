@@ -12,7 +12,6 @@ and ``ATTRIBUTION.md`` (source, commit and licence; keep it with the data).
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,18 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from sclam_ros.io.bag import BagError
-    from sclam_ros.io.convert import CONVERTERS, ConvertError
+    """Input errors (ConvertError, BagError) propagate to sclam_ros.cli.main: one line, exit 2."""
+    from sclam_ros.cli.main import CommandError
+    from sclam_ros.io.convert import CONVERTERS
 
-    try:
-        if args.scan_delay and args.format != "breezyslam":
-            print("sclam convert: --scan-delay applies to breezyslam logs only", file=sys.stderr)
-            return 2
-        options = {"scan_delay": args.scan_delay} if args.format == "breezyslam" else {}
-        summary = CONVERTERS[args.format](args.src, args.out, args.storage, **options)
-    except (ConvertError, BagError) as exc:
-        print(f"sclam convert: {exc}", file=sys.stderr)
-        return 1
+    if args.scan_delay and args.format != "breezyslam":
+        raise CommandError("--scan-delay applies to breezyslam logs only")
+    options = {"scan_delay": args.scan_delay} if args.format == "breezyslam" else {}
+    summary = CONVERTERS[args.format](args.src, args.out, args.storage, **options)
     print(f"wrote {args.out}/bag, params.yaml, ATTRIBUTION.md: "
           + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"
                       for k, v in summary.items()))

@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 
 log = logging.getLogger("sclam")
 
@@ -64,35 +63,31 @@ def format_summary(report) -> str:
 
 
 def run(args) -> int:
-    from sclam_ros.io.bag import BagError
+    """Input errors propagate to sclam_ros.cli.main: one line, exit status 2."""
     from sclam_ros.diagnosis.cross_run import add_cross_run
     from sclam_ros.diagnosis.diagnose import diagnose_keyframes, write_diagnosis_report
     from sclam_ros.diagnosis.effects import LIBRARY
-    from sclam_ros.core.estimator import CalibrationError
     from sclam_ros.io.recording import read_recording
-    from sclam_ros.core.params import ParamsError, SclamParams, atomic_write_text
+    from sclam_ros.core.params import SclamParams, atomic_write_text
+    from sclam_ros.cli.main import CommandError
     from sclam_ros.cli.progress import ProgressBar
 
-    try:
-        names = [n.strip() for n in args.effects.split(",")] if args.effects else None
-        unknown = [n for n in names or [] if n not in LIBRARY]
-        if unknown:
-            raise ValueError(f"unknown effect(s) {unknown}; known: {', '.join(LIBRARY)}")
-        params = SclamParams.from_yaml(args.params)
-        recording = read_recording(args.bag, params,
-                                   progress=ProgressBar("reading + scan matching", not args.quiet))
-        diagnosis = diagnose_keyframes(recording.keyframes, params, names, folds=args.folds,
-                                       progress=None if args.quiet else log.info)
-        if args.predict:
-            other_params = SclamParams.from_yaml(args.predict_params or args.params)
-            other = read_recording(args.predict, other_params,
-                                   progress=ProgressBar("reading + scan matching (--predict)",
-                                                        not args.quiet))
-            add_cross_run(diagnosis.report, recording.keyframes, params, other.keyframes,
-                          other_params, args.predict)
-    except (ParamsError, BagError, CalibrationError, FileNotFoundError, ValueError) as exc:
-        print(f"sclam diagnose: error: {exc}", file=sys.stderr)
-        return 2
+    names = [n.strip() for n in args.effects.split(",")] if args.effects else None
+    unknown = [n for n in names or [] if n not in LIBRARY]
+    if unknown:
+        raise CommandError(f"unknown effect(s) {unknown}; known: {', '.join(LIBRARY)}")
+    params = SclamParams.from_yaml(args.params)
+    recording = read_recording(args.bag, params,
+                               progress=ProgressBar("reading + scan matching", not args.quiet))
+    diagnosis = diagnose_keyframes(recording.keyframes, params, names, folds=args.folds,
+                                   progress=None if args.quiet else log.info)
+    if args.predict:
+        other_params = SclamParams.from_yaml(args.predict_params or args.params)
+        other = read_recording(args.predict, other_params,
+                               progress=ProgressBar("reading + scan matching (--predict)",
+                                                    not args.quiet))
+        add_cross_run(diagnosis.report, recording.keyframes, params, other.keyframes,
+                      other_params, args.predict)
     print(format_summary(diagnosis.report))
     if args.json:
         atomic_write_text(args.json, json.dumps(diagnosis.report, indent=2) + "\n")

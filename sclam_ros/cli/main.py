@@ -32,6 +32,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Exit status of a command whose input is unusable (argparse uses it for bad arguments).
+INPUT_ERROR_STATUS = 2
+
+
+class CommandError(ValueError):
+    """Arguments a command finds unusable beyond what argparse checks (one line, exit 2)."""
+
+
+def input_errors() -> tuple:
+    """The exceptions that mean "this input cannot be used", whatever the command: each
+    carries a message for the user, so they end in one line and exit status 2, never in a
+    traceback. Imported when needed: `sclam --help` should not pay for rosbags."""
+    import json
+
+    from sclam_ros.core.estimator import CalibrationError
+    from sclam_ros.core.params import ParamsError
+    from sclam_ros.fleet.recordings import RecordingsError
+    from sclam_ros.io.bag import BagError
+    from sclam_ros.io.convert import ConvertError
+
+    # OSError: a path that is a folder, unreadable, or not writable; JSONDecodeError: --truth.
+    return (CommandError, ParamsError, BagError, CalibrationError, ConvertError, RecordingsError,
+            OSError, json.JSONDecodeError)
+
+
+def one_line(exc: BaseException) -> str:
+    """The reason an exception gives, on one line: some messages list topics or problems
+    one per line, and the contract is a single `sclam <command>: error: <reason>` line."""
+    if isinstance(exc, OSError) and exc.strerror:
+        text = f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
+    else:
+        text = str(exc) or type(exc).__name__
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    out = lines[0] if lines else type(exc).__name__
+    for line in lines[1:]:
+        out += (" " if out.endswith(":") else "; ") + line
+    return out
+
+
 def main(argv=None) -> int:
     logging.basicConfig(level=logging.INFO, format="[sclam] %(levelname)s: %(message)s")
     args = build_parser().parse_args(argv)
@@ -40,6 +79,11 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        if not isinstance(exc, input_errors()):
+            raise  # a bug: its traceback is what a report needs
+        print(f"sclam {args.command}: error: {one_line(exc)}", file=sys.stderr)
+        return INPUT_ERROR_STATUS
 
 
 if __name__ == "__main__":

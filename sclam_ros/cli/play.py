@@ -28,6 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    """A missing or corrupt bag, or an unknown topic, propagates as BagError to
+    sclam_ros.cli.main (one line, exit status 2); SIGINT and SIGTERM end playback cleanly."""
+    from sclam_ros.cli.main import CommandError
     from sclam_ros.ros.player import play
 
+    if not args.rate > 0:
+        raise CommandError(f"--rate must be > 0, got {args.rate}")
     return play(args)

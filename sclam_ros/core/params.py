@@ -13,6 +13,7 @@ A parameters file is a standard ROS 2 one::
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import os
 import tempfile
@@ -36,6 +37,11 @@ ODOMETRY_KEYS = CALIBRATION_KEYS[:3]
 LASER_KEYS = CALIBRATION_KEYS[3:]
 
 
+# Bounds of a plausible wheeled ground robot (m): generous, they only catch garbage.
+MAX_WHEEL_RADIUS = 5.0
+MAX_ROBOT_SIZE = 20.0
+
+
 class ParamsError(ValueError):
     """A parameter file or value that cannot be used; the message says which and why."""
 
@@ -46,10 +52,19 @@ def _positive(name, value):
     return None
 
 
-def _finite(name, value):
-    if not math.isfinite(value):
-        return f"{name} must be finite, got {value!r}"
-    return None
+def _within(bound, positive=False):
+    """A check for a length or angle of a wheeled ground robot: |value| <= bound (and > 0
+    when ``positive``). Beyond it a value is a typo or garbage, not a robot, and a finite but
+    absurd one (a radius of 1e300 m) overflows the solver instead of failing clearly."""
+
+    def check(name, value):
+        if positive and not (math.isfinite(value) and 0 < value <= bound):
+            return f"{name} must be a number in (0, {bound:g}], got {value!r}"
+        if not (math.isfinite(value) and abs(value) <= bound):
+            return f"{name} must be a number in [-{bound:g}, {bound:g}], got {value!r}"
+        return None
+
+    return check
 
 
 def _non_negative(name, value):
@@ -91,12 +106,13 @@ class SclamParams:
         "ticks",
     )
     # --- nominal calibration (starting values) -------------------------------------
-    wheel_radius_left: float = _param(0.1, "left wheel radius", _positive, "m")
-    wheel_radius_right: float = _param(0.1, "right wheel radius", _positive, "m")
-    wheel_base: float = _param(0.5, "distance between the wheel contact points", _positive, "m")
-    laser_x: float = _param(0.0, "laser x on base_link", _finite, "m")
-    laser_y: float = _param(0.0, "laser y on base_link", _finite, "m")
-    laser_yaw: float = _param(0.0, "laser yaw on base_link", _finite, "rad")
+    wheel_radius_left: float = _param(0.1, "left wheel radius", _within(MAX_WHEEL_RADIUS, True), "m")
+    wheel_radius_right: float = _param(0.1, "right wheel radius", _within(MAX_WHEEL_RADIUS, True), "m")
+    wheel_base: float = _param(
+        0.5, "distance between the wheel contact points", _within(MAX_ROBOT_SIZE, True), "m")
+    laser_x: float = _param(0.0, "laser x on base_link", _within(MAX_ROBOT_SIZE), "m")
+    laser_y: float = _param(0.0, "laser y on base_link", _within(MAX_ROBOT_SIZE), "m")
+    laser_yaw: float = _param(0.0, "laser yaw on base_link", _within(2 * math.pi), "rad")
     # --- noise model ----------------------------------------------------------------
     wheel_noise: float = _param(
         0.02,
@@ -122,7 +138,7 @@ class SclamParams:
     )
     # --- scan matching --------------------------------------------------------------
     scan_voxel_size: float = _param(
-        0.05, "KISS-ICP voxel size for planar indoor scans", _positive, "m"
+        0.05, "KISS-ICP voxel size for planar indoor scans", _within(MAX_ROBOT_SIZE, True), "m"
     )
     scan_max_beams: float = _param(
         720,
@@ -172,8 +188,9 @@ class SclamParams:
         known = {f.name: f for f in fields(cls)}
         unknown = sorted(set(raw) - set(known))
         if unknown:
+            # Refused, not ignored: a misspelt nominal value would silently stay at its default.
             raise ParamsError(
-                f"{source}: unknown parameter(s) {', '.join(unknown)}; "
+                f"{source}: unknown parameter(s) {', '.join(map(_with_suggestion, unknown))}; "
                 f"known: {', '.join(sorted(known))}"
             )
         values = {}
@@ -201,8 +218,20 @@ class SclamParams:
             doc = yaml.safe_load(path.read_text())
         except FileNotFoundError:
             raise ParamsError(f"parameters file not found: {path}") from None
+        except IsADirectoryError:
+            raise ParamsError(f"{path} is a folder, not a parameters file") from None
+        except OSError as exc:
+            raise ParamsError(f"cannot read parameters file {path}: {exc.strerror or exc}") from None
+        except UnicodeDecodeError:
+            raise ParamsError(f"{path}: not a text file, so not a YAML parameters file") from None
         except yaml.YAMLError as exc:
-            raise ParamsError(f"{path}: not valid YAML: {exc}") from None
+            # PyYAML's message spans lines (problem, then a context excerpt): keep its gist.
+            mark = getattr(exc, "problem_mark", None)
+            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise ParamsError(f"{path}: not valid YAML{where}: {problem}") from None
+        if doc is None:
+            raise ParamsError(f"{path}: the parameters file is empty")
         return cls.from_dict(ros_parameters_section(doc, node_name, str(path)), str(path))
 
     def to_yaml_dict(self, node_name: str = NODE_NAME) -> dict:
@@ -211,6 +240,12 @@ class SclamParams:
     def write_yaml(self, path, node_name: str = NODE_NAME, header: str = "") -> None:
         text = header + yaml.safe_dump(self.to_yaml_dict(node_name), sort_keys=False)
         atomic_write_text(path, text)
+
+
+def _with_suggestion(name: str) -> str:
+    """``name`` with the closest known parameter name, for typos: "wheel_bas (wheel_base?)"."""
+    close = difflib.get_close_matches(name, [f.name for f in fields(SclamParams)], n=1)
+    return f"{name} ({close[0]}?)" if close else name
 
 
 def ros_parameters_section(doc, node_name: str, source: str) -> dict:

@@ -13,6 +13,7 @@ Gauss-Newton steps with a Huber weight against the previous scan's points and no
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,10 @@ class RefinedScanMatcher:
         self.matcher = matcher
         self._reference = None  # ReferenceScan of the last scan accepted (or the first)
         self._reference_index = None  # its index in the matcher's numbering
+        # Matches kept as KISS-ICP gave them, by reason: "no_lines" (the reference scan has
+        # too few points on lines: no walls in view, collapsed beams), "too_few_pairs".
+        # They are still measurements, with point-to-point ICP's small scale bias.
+        self.unrefined: Counter = Counter()
 
     def add_scan(self, scan, guess, points):
         """(Match or None, z): the matcher's answer and its motion, refined where possible.
@@ -79,7 +84,9 @@ class RefinedScanMatcher:
         if match is not None:
             z = np.asarray(match.z, float)
             if self._reference_index == match.index_from:
-                z, _ = refine(self._reference, points, z)
+                z, used = refine(self._reference, points, z)
+                if not used:
+                    self.unrefined["no_lines" if self._reference is None else "too_few_pairs"] += 1
         if match is not None or self._reference_index is None:
             self._reference = ReferenceScan.from_points(points)
             self._reference_index = index
@@ -89,11 +96,14 @@ class RefinedScanMatcher:
 def refine(reference: ReferenceScan, points, z0):
     """z = laser_j ⊖ laser_i refined so points of scan j lie on the lines of scan i.
 
-    Returns (z, number of pairs used), or (z0, 0) if too few pairs were found.
+    Returns (z, number of pairs used), or (z0, 0) if too few pairs were found or there is
+    no reference (ReferenceScan.from_points gives None for a scan without lines).
     Runs once per scan: written on coordinate columns with scalar sin/cos (no per-call
     stacking of (N, 2) arrays), which makes it about a third faster than with se2's
     general helpers, with the same arithmetic.
     """
+    if reference is None:
+        return np.array(z0, float), 0
     q = np.asarray(points, float)
     qx, qy = np.ascontiguousarray(q[:, 0]), np.ascontiguousarray(q[:, 1])
     px, py = reference.points[:, 0], reference.points[:, 1]

@@ -72,14 +72,58 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
 
 def laser_scan_to_scan(msg) -> Scan:
     """sensor_msgs/LaserScan → Scan. Beams are not filtered here: the scan matcher decides
-    what a valid return is (0, NaN, inf, out of limits), in one place."""
+    what a valid return is (0, NaN, inf, out of limits), in one place. The beam geometry is
+    checked here, because only the message carries ``angle_max`` to check it against.
+
+    Raises MessageRejected with reason
+      ``scan_non_finite_angles``       an angle (min, max, increment) is NaN or ±inf,
+      ``scan_zero_angle_increment``    ``angle_increment`` is 0 (every beam in one direction),
+      ``scan_angles_span_over_a_turn`` the beams cover more than one turn (an absurd increment),
+      ``scan_ranges_angles_mismatch``  ``len(ranges)`` differs from what
+                                       ``angle_min``/``angle_max``/``angle_increment`` describe.
+    A negative increment is legal (beam i points at angle_min + i·angle_increment).
+    """
+    ranges = np.asarray(msg.ranges, dtype=float)
+    angle_min, increment = float(msg.angle_min), float(msg.angle_increment)
+    check_scan_geometry(len(ranges), angle_min, float(msg.angle_max), increment)
     return Scan(
         stamp=stamp_to_sec(msg.header.stamp),
-        ranges=np.asarray(msg.ranges, dtype=float),
-        angle_min=float(msg.angle_min),
-        angle_increment=float(msg.angle_increment),
+        ranges=ranges,
+        angle_min=angle_min,
+        angle_increment=increment,
         range_min=float(msg.range_min),
         range_max=float(msg.range_max),
         time_increment=float(msg.time_increment),
         frame_id=str(msg.header.frame_id),
     )
+
+
+# Drivers disagree on whether angle_max is the last beam's angle or one increment beyond it
+# (and float32 angles round): one beam either way is a convention, more is a wrong message.
+BEAM_COUNT_TOLERANCE = 1
+
+
+def check_scan_geometry(n: int, angle_min: float, angle_max: float, increment: float) -> None:
+    """Raise MessageRejected if n beams from angle_min in steps of increment cannot be the
+    scan that angle_max describes. An empty or one-beam scan has no geometry to contradict:
+    it passes, and the scan matcher counts it as empty or too small."""
+    if not (math.isfinite(angle_min) and math.isfinite(angle_max) and math.isfinite(increment)):
+        raise MessageRejected(
+            "scan_non_finite_angles",
+            f"angle_min={angle_min}, angle_max={angle_max}, angle_increment={increment}")
+    if n <= 1:
+        return
+    if increment == 0.0:
+        raise MessageRejected("scan_zero_angle_increment", f"{n} beams all at {angle_min} rad")
+    described = (angle_max - angle_min) / increment + 1.0
+    if abs(n - described) > BEAM_COUNT_TOLERANCE + 0.01:  # + float32 rounding of the angles
+        raise MessageRejected(
+            "scan_ranges_angles_mismatch",
+            f"{n} ranges, but angle_min={angle_min:.6g}, angle_max={angle_max:.6g}, "
+            f"angle_increment={increment:.6g} describe {described:.1f} beams")
+    # Beams may close the circle (the last one a step short of, or at, the first) but not wrap
+    # around it: beyond that, different beams land on the same bearing and points collapse.
+    if abs(increment) * (n - 1) > 2.0 * math.pi + abs(increment):
+        raise MessageRejected(
+            "scan_angles_span_over_a_turn",
+            f"{n} beams × {increment} rad span {abs(increment) * (n - 1):.3g} rad")

@@ -235,6 +235,8 @@ class SclamNode(Node):
                 self._reject("scan_non_finite_stamp", "LaserScan stamp is not finite")
                 return
             self.calibrator.add_scan(scan)
+        except MessageRejected as exc:  # bad beam geometry: counted under its own reason
+            self._reject(exc.reason, exc.detail)
         except Exception as exc:
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")
 

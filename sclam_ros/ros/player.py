@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import array
 import importlib
+import signal
 import time
 
 import numpy as np
@@ -70,22 +71,26 @@ def _wait_for_subscribers(node, publishers, timeout, executor):
     return False
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def play(args) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.qos import QoSProfile
+    from rclpy.signals import SignalHandlerOptions
     from rosgraph_msgs.msg import Clock
 
-    from sclam_ros.io.bag import iter_messages, topic_info
+    from sclam_ros.io.bag import BagError, iter_messages, topic_info
 
-    if not args.rate > 0:
-        raise SystemExit("sclam play: --rate must be > 0")
+    # A missing, corrupt or unsuitable bag is a BagError: `sclam` makes it one line, exit 2.
     info = topic_info(args.bag)
     wanted = args.topics or sorted(info)
     missing = [t for t in wanted if t not in info]
     if missing:
-        raise SystemExit(f"sclam play: topic(s) {', '.join(missing)} not in {args.bag}; "
-                         f"available: {', '.join(sorted(info))}")
+        raise BagError(f"topic(s) {', '.join(missing)} not in {args.bag}; "
+                       f"available: {', '.join(sorted(info))}")
     classes = {}
     for topic in wanted:
         try:
@@ -93,9 +98,12 @@ def play(args) -> int:
         except (ImportError, AttributeError, ValueError):
             print(f"sclam play: skipping {topic}: no rclpy type {info[topic][0]}")
     if not classes:
-        raise SystemExit("sclam play: nothing to publish")
+        raise BagError(f"nothing to publish: no topic of {args.bag} has a message type rclpy knows")
 
-    rclpy.init()
+    # rclpy's own handlers would shut the context down under a running publish loop (the
+    # next publish raises); a plain KeyboardInterrupt for SIGINT and SIGTERM alike leaves
+    # through the `finally` below instead: the counts are printed, the exit is clean.
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("sclam_play")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -103,6 +111,7 @@ def play(args) -> int:
     publishers = {t: node.create_publisher(cls, t, qos) for t, cls in classes.items()}
     clock_pub = node.create_publisher(Clock, "/clock", 100) if args.clock else None
     counts = dict.fromkeys(classes, 0)
+    previous_sigterm = signal.signal(signal.SIGTERM, _interrupt)
     try:
         if args.wait_for_subscribers > 0 and not _wait_for_subscribers(
                 node, publishers, args.wait_for_subscribers, executor):
@@ -131,6 +140,7 @@ def play(args) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        signal.signal(signal.SIGTERM, previous_sigterm)
         node.destroy_node()
         rclpy.try_shutdown()
     print("sclam play: published " + ", ".join(f"{t}: {n}" for t, n in sorted(counts.items())))
