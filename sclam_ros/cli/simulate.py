@@ -7,6 +7,7 @@ works right away.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -37,6 +38,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--beams", type=int, default=360, help="beams per scan (default: %(default)s)")
     parser.add_argument("--encoder-rate", type=float, default=50.0, help="Hz (default: %(default)s)")
     parser.add_argument("--range-noise", type=float, default=0.01, help="m, 1σ (default: %(default)s)")
+    parser.add_argument("--range-noise-per-m", type=float, default=0.0,
+                        help="range noise growing with range, 1σ per m (default: %(default)s)")
+    parser.add_argument("--fov", type=float, default=360.0, help="laser field of view, deg (default: %(default)s)")
+    parser.add_argument("--range-max", type=float, default=20.0, help="laser range, m (default: %(default)s)")
+    parser.add_argument("--dropout", type=float, default=0.0,
+                        help="probability that a beam with a target returns nothing (default: %(default)s)")
+    parser.add_argument("--mixed-pixels", type=float, default=0.0,
+                        help="probability of a point between the surfaces at a depth edge (default: %(default)s)")
+    parser.add_argument("--scene", choices=("office", "outdoor"), default="office",
+                        help="office: walls and furniture; outdoor: trees, poles, parked cars (default: %(default)s)")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -72,7 +83,10 @@ def run(args) -> int:
             args.out, robot=args.robot, duration=args.duration, seed=args.seed,
             true_overrides=overrides, storage=args.storage, scan_rate=args.scan_rate,
             beams=args.beams, encoder_rate=args.encoder_rate, range_noise=args.range_noise,
-            effects=effects, progress=progress, overwrite=args.overwrite,
+            effects=effects, progress=progress, overwrite=args.overwrite, scene=args.scene,
+            laser=dict(fov=math.radians(args.fov), range_max=args.range_max,
+                       range_noise_per_m=args.range_noise_per_m, dropout=args.dropout,
+                       mixed_pixels=args.mixed_pixels),
         )
     except (ValueError, BagError) as exc:
         print(f"sclam simulate: error: {exc}", file=sys.stderr)

@@ -32,7 +32,7 @@ from sclam_ros.sim.motion import TrueKinematics
 from sclam_ros.sim.robots import get_preset, true_calibration
 from sclam_ros.sim.sensors import DEFAULT_SLIP_NOISE, LaserModel, encoder_samples, laser_scans
 from sclam_ros.sim.trajectory import simulate_trajectory
-from sclam_ros.sim.world import office_world
+from sclam_ros.sim.world import scene_world
 
 START_TIME = 1_700_000_000.0  # s, epoch of t = 0: stamps look like a real recording's
 JOINT_STATES_TOPIC = "/joint_states"
@@ -47,11 +47,17 @@ SCAN_PHASE = 0.013  # s
 
 def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None, storage="sqlite3",
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
-             progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False) -> dict:
-    """Simulate ``duration`` s of ``robot`` driving through the office world into ``out``.
+             progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False, scene="office",
+             laser=None, motion="route") -> dict:
+    """Simulate ``duration`` s of ``robot`` driving through ``scene`` into ``out``.
 
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
     ``effects``: dict name -> value (see ``sclam_ros.sim.effects.EFFECTS``).
+    ``scene``: "office" (walls, rooms, furniture) or "outdoor" (trees, poles, parked cars).
+    ``motion``: "route" (random, excites every parameter) or a fixed pattern that does not
+    ("straight", "straight_then_turns", "spin", "still": sim.trajectory.MOTIONS).
+    ``laser``: further LaserModel fields (fov in rad, range_max, range_noise_per_m,
+    dropout, mixed_pixels) beside ``beams`` and ``range_noise``.
     ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
     """
     report = progress or (lambda message: None)
@@ -69,20 +75,20 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"], effect_set
     )
     mount = np.array([truth["laser_x"], truth["laser_y"], truth["laser_yaw"]])
-    world = office_world()
+    world = scene_world(scene)
+    model = LaserModel(beams=beams, range_noise=range_noise, **(laser or {}))
     # Independent streams per purpose: changing the laser model does not change the route.
     route_seed, encoder_rng, laser_rng = np.random.SeedSequence(seed).spawn(3)
 
     report(f"planning and driving {duration:.0f} s of trajectory ({preset.name}, seed {seed})")
     trajectory = simulate_trajectory(
         world, kinematics, duration, int(route_seed.generate_state(1)[0]), preset.footprint_radius,
-        CONTROL_RATE,
+        CONTROL_RATE, motion=motion,
     )
     encoders = encoder_samples(
         trajectory, kinematics, encoder_rate, preset.ticks_per_revolution,
         np.random.default_rng(encoder_rng), slip_noise,
     )
-    model = LaserModel(beams=beams, range_noise=range_noise)
     time_increment = effect_set.scan_time_increment(scan_rate, beams)
     scan_times = SCAN_PHASE + np.arange(
         int(np.floor((duration - SCAN_PHASE - time_increment * beams) * scan_rate)) + 1
@@ -120,6 +126,8 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         "duration": float(duration),
         "start_time": START_TIME,
         "effects": effect_set.describe(),
+        "scene": scene,
+        "motion": motion,
         "nominal": dict(preset.nominal),
         "ticks_per_revolution": float(preset.ticks_per_revolution),
         "storage": storage,
@@ -127,8 +135,12 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
             "encoder_rate": float(encoder_rate),
             "scan_rate": float(scan_rate),
             "beams": int(beams),
+            "fov_deg": float(np.degrees(model.fov)),
             "range_noise": float(range_noise),
+            "range_noise_per_m": float(model.range_noise_per_m),
             "range_max": model.range_max,
+            "dropout": float(model.dropout),
+            "mixed_pixels": float(model.mixed_pixels),
             "slip_noise": float(slip_noise),
             "control_rate": CONTROL_RATE,
         },

@@ -48,22 +48,80 @@ def encoder_samples(trajectory: Trajectory, kinematics: TrueKinematics, rate: fl
 
 @dataclass
 class LaserModel:
+    """A 2D laser scanner as robots carry them (the defaults: a 360° indoor laser).
+
+    Beams cover ``fov`` centred on the laser's x axis: a full circle without a duplicated
+    beam, or from −fov/2 to +fov/2 inclusive. Range noise is Gaussian with
+    σ = ``range_noise`` + ``range_noise_per_m``·range (the second for lasers whose spec is a
+    percentage of range). ``dropout``: probability that a beam with a target reports no
+    return. ``mixed_pixels``: probability that a beam at a depth edge (neighbours more than
+    MIXED_PIXEL_EDGE apart) returns a point between the two surfaces, as a real laser whose
+    spot straddles the edge does.
+    """
+
     beams: int = 360
     range_min: float = 0.05  # m
     range_max: float = 20.0  # m
     range_noise: float = 0.01  # m, 1σ Gaussian
     frame_id: str = "laser"
+    fov: float = 2.0 * np.pi  # rad
+    range_noise_per_m: float = 0.0  # 1σ per m of range
+    dropout: float = 0.0  # probability per beam
+    mixed_pixels: float = 0.0  # probability per beam at a depth edge
+
+    def __post_init__(self):
+        if not 0.0 < self.fov <= 2.0 * np.pi + 1e-12:
+            raise ValueError(f"field of view must be in (0, 360] deg, got {np.degrees(self.fov):g}")
+        if self.beams < 2 or not 0.0 < self.range_min < self.range_max:
+            raise ValueError(f"laser needs >= 2 beams and 0 < range_min < range_max, got "
+                             f"{self.beams}, {self.range_min}, {self.range_max}")
+        for name in ("dropout", "mixed_pixels"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"{name} is a probability in [0, 1), got {getattr(self, name)}")
+
+    @property
+    def full_circle(self) -> bool:
+        return self.fov >= 2.0 * np.pi - 1e-9
 
     @property
     def angle_min(self) -> float:
-        return -np.pi
+        return -np.pi if self.full_circle else -self.fov / 2.0
 
     @property
     def angle_increment(self) -> float:
-        return 2.0 * np.pi / self.beams
+        return self.fov / (self.beams if self.full_circle else self.beams - 1)
 
     def angles(self) -> np.ndarray:
         return self.angle_min + self.angle_increment * np.arange(self.beams)
+
+    def measure(self, true_ranges: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """What the scanner reports for rows of true ranges (inf: nothing within range_max)."""
+        ranges = np.array(true_ranges, float)
+        if self.mixed_pixels > 0.0:
+            _mix_edges(ranges, self.mixed_pixels, rng)
+        hit = np.isfinite(ranges)
+        sigma = self.range_noise + self.range_noise_per_m * ranges[hit]
+        ranges[hit] += sigma * rng.standard_normal(int(hit.sum()))
+        if self.dropout > 0.0:
+            ranges[hit & (rng.random(ranges.shape) < self.dropout)] = np.inf
+        # A noisy reading still inside the limits; a real driver reports nothing otherwise.
+        ranges[np.isfinite(ranges) & ((ranges < self.range_min) | (ranges > self.range_max))] = np.inf
+        return ranges
+
+
+MIXED_PIXEL_EDGE = 0.3  # m: a jump between neighbouring beams larger than this is a depth edge
+
+
+def _mix_edges(ranges: np.ndarray, probability: float, rng: np.random.Generator) -> None:
+    """In place: at depth edges, a beam returns a point between its range and its
+    neighbour's (uniformly), with ``probability`` per edge beam."""
+    near, far = ranges[..., :-1], ranges[..., 1:]
+    both = np.isfinite(near) & np.isfinite(far)
+    with np.errstate(invalid="ignore"):
+        edge = both & (np.abs(far - near) > MIXED_PIXEL_EDGE)
+    mixed = edge & (rng.random(edge.shape) < probability)
+    fraction = rng.random(int(mixed.sum()))
+    near[mixed] = near[mixed] + fraction * (far[mixed] - near[mixed])
 
 
 def laser_scans(world: World, trajectory: Trajectory, mount_xyth, times, model: LaserModel,
@@ -93,10 +151,7 @@ def laser_scans(world: World, trajectory: Trajectory, mount_xyth, times, model: 
             world.segments, laser[..., :2].reshape(-1, 2), (laser[..., 2] + angles).reshape(-1),
             model.range_max,
         ).reshape(beam_times.shape)
-        hit = np.isfinite(ranges)
-        ranges[hit] += model.range_noise * rng.standard_normal(int(hit.sum()))
-        # A noisy reading still inside the limits; a real driver reports nothing otherwise.
-        ranges[hit & ((ranges < model.range_min) | (ranges > model.range_max))] = np.inf
+        ranges = model.measure(ranges, rng)
         for stamp, row in zip(stamps, ranges):
             scans.append(Scan(float(stamp + stamp_offset), row, model.angle_min, model.angle_increment,
                               model.range_min, model.range_max, time_increment, model.frame_id))

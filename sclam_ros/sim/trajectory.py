@@ -89,9 +89,11 @@ def _fits(world: World, points, margin: float) -> bool:
 
 
 def plan_route(world: World, rng: np.random.Generator, length: float, robot_radius: float,
-               limits: Limits | None = None, start: str = "corridor_west") -> list[Run]:
-    """Runs covering at least ``length`` metres of path, starting at node ``start``."""
+               limits: Limits | None = None, start: str | None = None) -> list[Run]:
+    """Runs covering at least ``length`` metres of path, starting at node ``start`` (default:
+    the world's first node)."""
     limits = limits or Limits()
+    start = start or next(iter(world.nodes))
     # Manoeuvres must keep a tracking margin on top of the robot's radius.
     margin = robot_radius + 0.3
     runs: list[Run] = []
@@ -262,12 +264,15 @@ class _Controller:
 
 
 def drive(runs: list[Run], kinematics: TrueKinematics, duration: float, control_rate: float = 50.0,
-          limits: Limits | None = None, start_heading: float = 0.0) -> Trajectory:
-    """Follow ``runs`` for ``duration`` seconds; the exact true trajectory."""
+          limits: Limits | None = None, start_heading: float = 0.0, start_xy=None,
+          hold: bool = False) -> Trajectory:
+    """Follow ``runs`` for ``duration`` seconds; the exact true trajectory. ``hold``: stand
+    still once the runs are done instead of failing (``start_xy`` then places a robot that
+    has no run at all)."""
     limits = limits or Limits()
     dt = 1.0 / control_rate
     steps = int(round(duration * control_rate))
-    start = np.array([*runs[0].points[0], start_heading])
+    start = np.array([*(runs[0].points[0] if start_xy is None else start_xy), start_heading])
     controller = _Controller(runs, limits, dt, start)
     poses = np.empty((steps + 1, 3))
     twists = np.empty((steps, 3))
@@ -285,20 +290,26 @@ def drive(runs: list[Run], kinematics: TrueKinematics, duration: float, control_
         poses[k + 1] = controller.pose
         twists[k] = (vx, vy, wt)
         commands[k] = (v, w)
-        if controller.mode == "idle":
+        if controller.mode == "idle" and not hold:
             raise RuntimeError("the route ran out before the duration; plan a longer route")
     return Trajectory(dt, poses, twists, commands)
 
 
 def simulate_trajectory(world: World, kinematics: TrueKinematics, duration: float, seed: int,
                         robot_radius: float, control_rate: float = 50.0,
-                        limits: Limits | None = None) -> Trajectory:
-    """Plan and drive a route of ``duration`` seconds for a seed; checks it stays clear."""
+                        limits: Limits | None = None, motion: str = "route") -> Trajectory:
+    """Plan and drive ``duration`` seconds for a seed; checks it stays clear. ``motion``:
+    "route" (the random calibration-friendly drive) or a fixed pattern (see MOTIONS)."""
     limits = limits or Limits()
-    rng = np.random.default_rng(seed)
-    # The robot cannot beat cruise_max on average, so this path is always long enough.
-    runs = plan_route(world, rng, limits.cruise_max * duration + 20.0, robot_radius, limits)
-    trajectory = drive(runs, kinematics, duration, control_rate, limits, start_heading=0.0)
+    if motion == "route":
+        rng = np.random.default_rng(seed)
+        # The robot cannot beat cruise_max on average, so this path is always long enough.
+        runs = plan_route(world, rng, limits.cruise_max * duration + 20.0, robot_radius, limits)
+        trajectory = drive(runs, kinematics, duration, control_rate, limits, start_heading=0.0)
+    else:
+        runs, start = motion_pattern(world, motion, robot_radius)
+        trajectory = drive(runs, kinematics, duration, control_rate, limits,
+                           start_heading=start[2], start_xy=start[:2], hold=True)
     clearance = world.clearance(trajectory.poses[:, :2])
     if clearance.min() < robot_radius:
         k = int(np.argmin(clearance))
@@ -307,3 +318,79 @@ def simulate_trajectory(world: World, kinematics: TrueKinematics, duration: floa
             f"(clearance {clearance[k]:.3f} m < robot radius {robot_radius} m); seed {seed}"
         )
     return trajectory
+
+
+# --- fixed motion patterns -------------------------------------------------------------
+# Drives that leave some calibration parameters undetermined, on purpose (the degenerate-
+# motion tests): each stands still once its runs are done, however long the recording.
+#   straight             one straight leg along the world's longest straight road, 0.35 m/s:
+#                        no rotation at all (≈ 68 s to the end of the office corridor)
+#   straight_then_turns  the same leg, then at its end figure-eights (1 m loops both ways)
+#                        and spins both ways: its first minute is ``straight``'s
+#   spin                 turns on the spot at the leg's end, two turns each way in turn
+#   still                no motion
+MOTIONS = ("route", "straight", "straight_then_turns", "spin", "still")
+PATTERN_CRUISE = 0.35  # m/s
+LOOP_RADIUS = 1.0  # m
+SPIN_TURNS = 2  # whole turns per on-the-spot spin, alternating direction
+PATTERN_REPEATS = 6  # manoeuvres at the leg's end: plenty for a few minutes
+
+
+def longest_straight(world: World):
+    """End points of the longest chain of collinear roadmap edges."""
+    best = (0.0, None, None)
+    for a, b in world.edges + [(b, a) for a, b in world.edges]:
+        start, previous, current = np.array(world.nodes[a], float), a, b
+        direction = np.array(world.nodes[b], float) - start
+        direction /= np.linalg.norm(direction)
+        while True:
+            onward = [n for n in world.neighbours(current) if n != previous
+                      and _collinear(np.array(world.nodes[current], float),
+                                     np.array(world.nodes[n], float), direction)]
+            if not onward:
+                break
+            previous, current = current, onward[0]
+        end = np.array(world.nodes[current], float)
+        if np.linalg.norm(end - start) > best[0]:
+            best = (float(np.linalg.norm(end - start)), start, end)
+    return best[1], best[2]
+
+
+def _collinear(here, there, direction) -> bool:
+    step = there - here
+    return bool(np.dot(step, direction) > 0.99 * np.linalg.norm(step))
+
+
+def _spin(at, heading, turns) -> Run:
+    """Turn on the spot by ``turns`` whole turns (sign: direction), then stay."""
+    ahead = at + 0.01 * np.array([np.cos(heading), np.sin(heading)])
+    return Run(np.stack([at, ahead]), np.full(2, 0.1), extra_spin=2 * np.pi * turns)
+
+
+def motion_pattern(world: World, motion: str, robot_radius: float):
+    """(runs, start pose) of a pattern of MOTIONS (not "route")."""
+    if motion not in MOTIONS or motion == "route":
+        raise ValueError(f"unknown motion {motion!r}; motions: {', '.join(MOTIONS)}")
+    start, end = longest_straight(world)
+    heading = float(np.arctan2(*(end - start)[::-1]))
+    # The leg stops a metre short of the last node, where the manoeuvres have room.
+    end = end - (end - start) / np.linalg.norm(end - start)
+    leg = np.concatenate([start[None], _segment_points(start, end)])
+    straight = Run(leg, np.full(len(leg), PATTERN_CRUISE))
+    if motion == "still":
+        return [], np.array([*start, heading])
+    if motion == "spin":
+        return ([_spin(start, heading, SPIN_TURNS * (-1) ** i) for i in range(PATTERN_REPEATS)],
+                np.array([*start, heading]))
+    if motion == "straight":
+        return [straight], np.array([*start, heading])
+    margin = robot_radius + 0.3
+    eight = np.concatenate([_loop(end, heading, LOOP_RADIUS, 1.0), _loop(end, heading, LOOP_RADIUS, -1.0)])
+    if not _fits(world, eight, margin):
+        raise ValueError(f"no room for {motion!r} at the end of the longest straight road")
+    runs = [straight]
+    for i in range(PATTERN_REPEATS):
+        points = np.concatenate([end[None], eight])
+        runs.append(Run(points, np.full(len(points), PATTERN_CRUISE)))
+        runs.append(_spin(end, heading, (-1) ** i))
+    return runs, np.array([*start, heading])

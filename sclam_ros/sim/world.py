@@ -196,3 +196,64 @@ def office_world() -> World:
         "hall_north",
     )
     return World(np.array(walls, float), nodes, edges, open_nodes, (0.0, 0.0, 30.0, 16.0))
+
+
+def _octagon(cx, cy, radius) -> list[tuple[float, float, float, float]]:
+    """A round object (tree trunk, pole) as a closed octagon."""
+    angles = np.linspace(0.0, 2.0 * np.pi, 9) + np.pi / 8.0
+    return _polyline(*[(cx + radius * np.cos(a), cy + radius * np.sin(a)) for a in angles])
+
+
+def outdoor_world() -> World:
+    """Open ground (50 m × 30 m) with few long walls: a car park with two streets.
+
+    What a planar laser sees outdoors: tree trunks and poles (small round objects), parked
+    cars (boxes), and one building façade at the north-east. Most beams return nothing
+    within a 20 m laser's range; there are few lines for a point-to-line matcher. The
+    roadmap is a ladder of two streets (y = 8, y = 22) joined by three cross streets;
+    objects keep at least 3 m from every street so that loops and spins fit beside them.
+    """
+    rng = np.random.default_rng(2024)  # a fixed layout: the scene is part of the benchmark
+    walls = []
+    streets_y, cross_x = (8.0, 22.0), (5.0, 25.0, 45.0)
+    # Tree rows along both streets, 3.5 m off, every ~6 m (jittered), trunks 0.2-0.4 m.
+    for y in streets_y:
+        for side in (-1.0, 1.0):
+            for x in np.arange(8.0, 44.0, 6.0):
+                if min(abs(x - c) for c in cross_x) < 3.5:
+                    continue  # keep the crossings clear
+                walls += _octagon(x + rng.uniform(-1.0, 1.0), y + side * rng.uniform(3.5, 4.5),
+                                  rng.uniform(0.2, 0.4))
+    # Parked cars (4.5 m × 1.8 m) south of the south street and north of the north street.
+    for x in (11.0, 17.0, 31.0, 38.5):
+        walls += _box(x, 8.0 - 5.6, 4.5, 1.8)
+    for x in (12.5, 33.0):
+        walls += _box(x, 22.0 + 5.6, 4.5, 1.8)
+    # Poles along the middle cross street.
+    for y in (11.0, 15.0, 19.0):
+        walls += _box(25.0 + 3.2, y, 0.15, 0.15)
+        walls += _box(25.0 - 3.2, y + 2.0, 0.15, 0.15)
+    # One building façade with a recessed entrance: the only long lines in the scene.
+    walls += _polyline((30.0, 30.0), (38.0, 30.0), (38.0, 31.0), (41.0, 31.0), (41.0, 30.0), (50.0, 30.0))
+    nodes = {}
+    edges = []
+    for j, y in enumerate(streets_y):
+        xs = (5.0, 15.0, 25.0, 35.0, 45.0)
+        for i, x in enumerate(xs):
+            nodes[f"street{j}_{i}"] = (x, y)
+            if i:
+                edges.append((f"street{j}_{i - 1}", f"street{j}_{i}"))
+    for i, x in zip((0, 2, 4), cross_x):
+        nodes[f"cross_{i}"] = (x, 15.0)
+        edges += [(f"street0_{i}", f"cross_{i}"), (f"cross_{i}", f"street1_{i}")]
+    open_nodes = ("street0_1", "street0_3", "street1_1", "street1_3", "cross_0", "cross_2", "cross_4")
+    return World(np.array(walls, float), nodes, edges, open_nodes, (0.0, 0.0, 50.0, 30.0))
+
+
+SCENES = {"office": office_world, "outdoor": outdoor_world}
+
+
+def scene_world(name: str) -> World:
+    if name not in SCENES:
+        raise ValueError(f"unknown scene {name!r}; scenes: {', '.join(sorted(SCENES))}")
+    return SCENES[name]()
