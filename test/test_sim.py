@@ -13,7 +13,8 @@ from sclam_ros.sim.effects import EFFECTS, EffectSet, make_effect
 from sclam_ros.sim.motion import Trajectory, TrueKinematics, twist_increment
 from sclam_ros.sim.robots import PRESETS
 from sclam_ros.sim.trajectory import simulate_trajectory
-from sclam_ros.sim.world import cast_rays, distance_to_segments, office_world
+from sclam_ros.sim.sensors import LaserModel
+from sclam_ros.sim.world import SCENES, cast_rays, distance_to_segments, office_world, outdoor_world
 
 WORLD = office_world()
 
@@ -124,14 +125,29 @@ def test_office_rays_stop_at_the_first_wall():
             assert not segments_cross(origin, short, WORLD.segments)
 
 
-def test_roadmap_edges_are_clear_for_every_robot():
+@pytest.mark.parametrize("scene", sorted(SCENES))
+def test_roadmap_edges_are_clear_for_every_robot(scene):
+    world = SCENES[scene]()
     margin = max(p.footprint_radius for p in PRESETS.values()) + 0.3
-    for a, b in WORLD.edges:
-        pa, pb = np.array(WORLD.nodes[a]), np.array(WORLD.nodes[b])
+    for a, b in world.edges:
+        pa, pb = np.array(world.nodes[a]), np.array(world.nodes[b])
         points = pa + np.linspace(0, 1, 400)[:, None] * (pb - pa)
-        assert WORLD.clearance(points).min() >= margin, (a, b)
-    for node in WORLD.nodes:
-        assert WORLD.neighbours(node), node
+        assert world.clearance(points).min() >= margin, (a, b)
+        assert world.inside_bounds(points).all(), (a, b)
+    for node in world.nodes:
+        assert world.neighbours(node), node
+    assert set(world.open_nodes) <= set(world.nodes)
+
+
+def test_outdoor_scene_has_few_long_lines():
+    """What makes it outdoor for a scan matcher: many short segments (trunks, poles, cars),
+    almost no long walls, and most of a 20 m laser's beams without a return."""
+    world = outdoor_world()
+    lengths = np.hypot(world.segments[:, 2] - world.segments[:, 0], world.segments[:, 3] - world.segments[:, 1])
+    assert (lengths > 5.0).sum() <= 3 and np.median(lengths) < 1.0
+    angles = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    ranges = world.raycast(np.array([15.0, 8.0, 0.3]), angles, 20.0)
+    assert 0.05 < np.isfinite(ranges).mean() < 0.5
 
 
 # --- motion and trajectory ---------------------------------------------------------------
@@ -163,17 +179,20 @@ def test_pose_at_is_continuous_and_hits_knots():
         trajectory.pose_at(31.0)
 
 
-@pytest.mark.parametrize("robot,seed", [("powerbot", 0), ("custom", 1), ("pioneer", 2), ("powerbot", 7)])
-def test_trajectory_stays_in_free_space_and_within_limits(robot, seed):
+@pytest.mark.parametrize("robot,seed,scene", [("powerbot", 0, "office"), ("custom", 1, "office"),
+                                              ("pioneer", 2, "office"), ("powerbot", 7, "office"),
+                                              ("powerbot", 3, "outdoor"), ("custom", 4, "outdoor")])
+def test_trajectory_stays_in_free_space_and_within_limits(robot, seed, scene):
     preset = PRESETS[robot]
+    world = SCENES[scene]()
     kin = TrueKinematics(*(preset.true[k] for k in CALIBRATION_KEYS[:3]))
-    trajectory = simulate_trajectory(WORLD, kin, 240.0, seed, preset.footprint_radius)
+    trajectory = simulate_trajectory(world, kin, 240.0, seed, preset.footprint_radius)
     t = np.arange(0.0, trajectory.duration, 0.005)
     positions = trajectory.pose_at(t)[:, :2]
-    assert WORLD.inside_bounds(positions).all()
-    assert WORLD.clearance(positions).min() > preset.footprint_radius
+    assert world.inside_bounds(positions).all()
+    assert world.clearance(positions).min() > preset.footprint_radius
     # The path between samples cannot cross a wall either.
-    assert not any(segments_cross(p, q, WORLD.segments) for p, q in zip(positions[:-1:20], positions[20::20]))
+    assert not any(segments_cross(p, q, world.segments) for p, q in zip(positions[:-1:20], positions[20::20]))
     v, w = trajectory.twists[:, 0], trajectory.twists[:, 2]
     assert v.min() >= 0.0 and v.max() <= 0.6 + 1e-9 and np.abs(w).max() <= 1.0 + 1e-9
     assert np.abs(np.diff(v)).max() / trajectory.dt <= 0.6 + 1e-6  # smooth accelerations
@@ -279,6 +298,30 @@ def test_range_noise_level(default_run):
     assert abs(np.mean(residuals)) < 0.002
 
 
+def test_laser_model_geometry_and_noise():
+    """Field of view and beam angles as a LaserScan describes them; noise, dropouts and mixed
+    pixels measured against what the model says."""
+    rng = np.random.default_rng(0)
+    wide = LaserModel(beams=1081, fov=np.radians(270.0))
+    angles = wide.angles()
+    assert angles[0] == pytest.approx(-np.radians(135.0)) and angles[-1] == pytest.approx(np.radians(135.0))
+    full = LaserModel(beams=360)
+    assert full.angle_min == -np.pi and full.angles()[-1] == pytest.approx(np.pi - np.radians(1.0))
+    with pytest.raises(ValueError, match="field of view"):
+        LaserModel(fov=np.radians(400.0))
+    true = np.full((200, 1000), 10.0)
+    noisy = LaserModel(range_noise=0.01, range_noise_per_m=0.002).measure(true, rng)
+    assert np.std(noisy - true) == pytest.approx(0.01 + 0.002 * 10.0, rel=0.02)
+    dropped = LaserModel(range_noise=0.0, dropout=0.3).measure(true, rng)
+    assert np.isinf(dropped).mean() == pytest.approx(0.3, abs=0.01)
+    # A depth edge every other beam: 2 m then 6 m. Mixed points lie between the surfaces.
+    edges = np.tile([2.0, 6.0], (200, 500))
+    mixed = LaserModel(range_noise=0.0, mixed_pixels=0.5).measure(edges, rng)
+    phantom = (mixed != edges) & np.isfinite(mixed)
+    assert phantom[:, :-1].mean() == pytest.approx(0.5, abs=0.02)
+    assert ((mixed[phantom] > 2.0) & (mixed[phantom] < 6.0)).all()
+
+
 def test_deterministic_per_seed(tmp_path):
     a = simulate(tmp_path / "a", duration=15.0, seed=3)
     b = simulate(tmp_path / "b", duration=15.0, seed=3, storage="mcap")
@@ -300,7 +343,9 @@ def test_effects_registry_and_parsing():
     assert make_effect("time_offset", "0.05").offset == 0.05
     change = make_effect("radius_change_at", "10,-0.02,0.01")
     assert (change.time, change.left, change.right) == (10.0, -0.02, 0.01)
-    assert make_effect("radius_change_at", "right:0.5,time:3").describe() == {"time": 3.0, "left": -0.01, "right": 0.5}
+    described = make_effect("radius_change_at", "right:0.5,time:3").describe()
+    assert {k: described[k] for k in ("time", "left", "right")} == {"time": 3.0, "left": -0.01, "right": 0.5}
+    assert np.isnan(described["then_after"])  # no second step unless asked for
     with pytest.raises(ValueError, match="unknown effect"):
         make_effect("gremlins")
     with pytest.raises(ValueError, match="unknown parameter"):
@@ -308,6 +353,20 @@ def test_effects_registry_and_parsing():
     with pytest.raises(ValueError, match="not inside the run"):
         EffectSet.from_spec({"radius_change_at": 100}).for_duration(60.0)
     assert EffectSet.from_spec({"radius_change_at": None}).for_duration(60.0).effects[0].time == 30.0
+
+
+def test_radius_steps_and_ramp_follow_their_definition():
+    two = make_effect("radius_change_at", {"time": 10.0, "left": -0.01, "right": 0.02, "then_after": 5.0,
+                                           "then_left": -0.01, "then_right": 0.0})
+    left, right = two.radii(np.array([9.99, 10.0, 14.99, 15.0]), 0.1, 0.2)
+    np.testing.assert_allclose(left, [0.1, 0.099, 0.099, 0.099 * 0.99])
+    np.testing.assert_allclose(right, [0.2, 0.204, 0.204, 0.204])
+    ramp = make_effect("radius_ramp", {"time": 100.0, "duration": 300.0, "left": -0.01, "right": 0.0})
+    left, right = ramp.radii(np.array([0.0, 100.0, 250.0, 400.0, 900.0]), 0.1, 0.2)
+    np.testing.assert_allclose(left, [0.1, 0.1, 0.0995, 0.099, 0.099])
+    np.testing.assert_allclose(right, 0.2)
+    with pytest.raises(ValueError, match="do not fit"):
+        make_effect("radius_ramp", {"time": 50.0}).for_duration(40.0)
 
 
 def test_radius_change_scales_wheel_rotation_after_the_step():

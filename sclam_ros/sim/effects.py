@@ -90,11 +90,15 @@ class TimeOffset(Effect):
 
 class RadiusChangeAt(Effect):
     name = "radius_change_at"
+    params = (("time", float("nan"), "s"), ("left", -0.01, "fraction"), ("right", -0.0033, "fraction"),
+              ("then_after", float("nan"), "s"), ("then_left", 0.0, "fraction"),
+              ("then_right", 0.0, "fraction"))
     doc = (
         "step change of both true wheel radii at a time since the start, as fractions "
-        "(e.g. a tyre losing pressure, a load put on the robot); time defaults to mid-run"
+        "(e.g. a tyre losing pressure, a load put on the robot); time defaults to mid-run; "
+        "optionally a second step then_after s later (then_left, then_right, relative to the "
+        "radii after the first)"
     )
-    params = (("time", float("nan"), "s"), ("left", -0.01, "fraction"), ("right", -0.0033, "fraction"))
 
     def for_duration(self, duration):
         if np.isnan(self.time):
@@ -103,11 +107,32 @@ class RadiusChangeAt(Effect):
             raise ValueError(f"radius_change_at: time {self.time} s is not inside the run (0, {duration}) s")
 
     def radii(self, t, r_left, r_right):
-        after = np.asarray(t) >= self.time
+        t = np.asarray(t)
+        after = t >= self.time
+        second = t >= self.time + self.then_after if np.isfinite(self.then_after) else False
         return (
-            r_left * np.where(after, 1.0 + self.left, 1.0),
-            r_right * np.where(after, 1.0 + self.right, 1.0),
+            r_left * np.where(after, 1.0 + self.left, 1.0) * np.where(second, 1.0 + self.then_left, 1.0),
+            r_right * np.where(after, 1.0 + self.right, 1.0) * np.where(second, 1.0 + self.then_right, 1.0),
         )
+
+
+class RadiusRamp(Effect):
+    name = "radius_ramp"
+    doc = ("the true wheel radii change linearly by the given fractions over `duration` s from "
+           "`time` (default mid-run), then stay (a slowly deflating tyre)")
+    params = (("time", float("nan"), "s"), ("duration", 300.0, "s"), ("left", -0.01, "fraction"),
+              ("right", -0.01, "fraction"))
+
+    def for_duration(self, duration):
+        if np.isnan(self.time):
+            self.time = duration / 2.0
+        if not 0.0 <= self.time < duration or self.duration <= 0:
+            raise ValueError(f"radius_ramp: time {self.time} s / duration {self.duration} s "
+                             f"do not fit the run (0, {duration}) s")
+
+    def radii(self, t, r_left, r_right):
+        progress = np.clip((np.asarray(t) - self.time) / self.duration, 0.0, 1.0)
+        return r_left * (1.0 + self.left * progress), r_right * (1.0 + self.right * progress)
 
 
 class RadiusDrift(Effect):
@@ -195,7 +220,7 @@ class FloorNoiseRegion(Effect):
 
 
 EFFECTS: dict[str, type[Effect]] = {
-    cls.name: cls for cls in (TimeOffset, RadiusChangeAt, RadiusDrift, LateralSlip, ScanMotion,
+    cls.name: cls for cls in (TimeOffset, RadiusChangeAt, RadiusRamp, RadiusDrift, LateralSlip, ScanMotion,
                               WheelEccentricity, SpeedDependentSlip, FloorNoiseRegion)
 }
 
