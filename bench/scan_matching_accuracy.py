@@ -22,9 +22,14 @@ Tables:
      with the normalised error (χ² per DoF) it gives;
   3. leakage of a systematic guess error into z (the registration's result depends on its
      starting point; a calibration would inherit that bias toward the nominal values);
-  4. sensitivity to range noise and beam count.
+  4. sensitivity to range noise and beam count;
+  5. (--factors) the lasers people own, one factor at a time from the default (10 Hz, 360
+     beams over 360°, 20 m, σ 1 cm, office) and then combined as real sensors: the scale of
+     the matched displacement against the true one, per match and chained over 1 s (what a
+     keyframe edge of the graph sees), bias and σ, time per scan. Same route and seed in
+     every row, so rows differ by the factor only.
 
-Run:  .venv/bin/python bench/scan_matching_accuracy.py [--quick]
+Run:  .venv/bin/python bench/scan_matching_accuracy.py [--quick] [--factors]
 """
 from __future__ import annotations
 
@@ -45,8 +50,9 @@ from sclam_ros.frontend.scan_matching import (
     scan_to_points,
 )
 from sclam_ros.sim.motion import TrueKinematics
+from sclam_ros.sim.sensors import LaserModel
 from sclam_ros.sim.trajectory import simulate_trajectory
-from sclam_ros.sim.world import office_world
+from sclam_ros.sim.world import SCENES, office_world
 
 MOUNT = np.array([0.15, -0.03, np.deg2rad(4.0)])  # true laser pose on base_link
 NOMINAL_MOUNT = MOUNT + [0.0, 0.0, np.deg2rad(2.0)]  # what the guess uses
@@ -76,6 +82,26 @@ def make_dataset(duration=120.0, seed=1, beams=360, range_noise=0.01, range_max=
         ranges = ranges + rng.normal(0.0, range_noise, beams)
         scans.append(Scan(float(t), ranges, angle_min, increment, 0.05, range_max))
     return with_guess_error(Dataset(base, laser, scans, []), 0.02, -0.03, NOMINAL_MOUNT)
+
+
+def make_sensor_dataset(duration=120.0, seed=1, scan_rate=SCAN_RATE, scene="office",
+                        **laser) -> Dataset:
+    """As make_dataset, with the simulator's full laser model (sclam_ros.sim.sensors.LaserModel:
+    beams, fov, range_max, range_noise, range_noise_per_m, dropout, mixed_pixels), any scan
+    rate and either scene. The route depends on the seed and scene only."""
+    world = SCENES[scene]()
+    model = LaserModel(**laser)
+    trajectory = simulate_trajectory(world, TrueKinematics(0.1, 0.1, 0.5), duration, seed, robot_radius=0.3)
+    stamps = np.arange(0.0, trajectory.duration, 1.0 / scan_rate)
+    base = trajectory.pose_at(stamps)
+    laser_poses = se2.compose(base, MOUNT)
+    rng = np.random.default_rng(seed + 1000)
+    angles = model.angles()
+    true_ranges = np.array([world.raycast(pose, angles, model.range_max) for pose in laser_poses])
+    ranges = model.measure(true_ranges, rng)
+    scans = [Scan(float(t), row, model.angle_min, model.angle_increment, model.range_min, model.range_max)
+             for t, row in zip(stamps, ranges)]
+    return with_guess_error(Dataset(base, laser_poses, scans, []), 0.02, -0.03, NOMINAL_MOUNT)
 
 
 def with_guess_error(data: Dataset, translation_scale, rotation_scale, mount=MOUNT) -> Dataset:
@@ -206,12 +232,84 @@ def binned_table(r: Result):
             print(f"{lo:5d}-{hi:<5d} {sel.sum():5d} | {fmt_mm(robust_sigma(r.errors[sel] * 1e3))}")
 
 
+def chained_scale(r: Result, stamps, span=1.0):
+    """Scale error of z chained over `span` s (consecutive matches composed), translation and
+    rotation: the least-squares slope of (chained z − chained truth) on the chained truth."""
+    z_chain, true_chain = [], []
+    z_acc = t_acc = None
+    start = None
+    previous_to = None
+    for (i, j), e, t in zip(r.pairs, r.errors, r.truth):
+        z = se2.compose(t, e)  # e = z ⊖ z_true = z_true⁻¹ ∘ z
+        if previous_to != i or z_acc is None:
+            z_acc, t_acc, start = z, t, stamps[i]
+        else:
+            z_acc, t_acc = se2.compose(z_acc, z), se2.compose(t_acc, t)
+        previous_to = j
+        if stamps[j] - start >= span - 1e-9:
+            z_chain.append(z_acc)
+            true_chain.append(t_acc)
+            z_acc = None
+    z_chain, true_chain = np.array(z_chain), np.array(true_chain)
+    d = z_chain - true_chain
+    kt = (d[:, 0] * true_chain[:, 0] + d[:, 1] * true_chain[:, 1]).sum() / (true_chain[:, :2] ** 2).sum()
+    kr = (d[:, 2] * true_chain[:, 2]).sum() / (true_chain[:, 2] ** 2).sum()
+    return kt, kr, len(z_chain)
+
+
+# (label, make_sensor_dataset keywords): one factor at a time, then sensors robots carry.
+SENSOR_FACTORS = [
+    ("default: 10 Hz, 360 b, 360°, 20 m, 1 cm", {}),
+    ("5 Hz", dict(scan_rate=5.0)),
+    ("20 Hz", dict(scan_rate=20.0)),
+    ("40 Hz", dict(scan_rate=40.0)),
+    ("180 beams", dict(beams=180)),
+    ("1440 beams", dict(beams=1440)),
+    ("fov 270°, 271 beams", dict(fov=np.radians(270.0), beams=271)),
+    ("fov 180°", dict(fov=np.radians(180.0), beams=181)),
+    ("range_max 5.6 m", dict(range_max=5.6)),
+    ("range_max 4 m", dict(range_max=4.0)),
+    ("range_max 30 m", dict(range_max=30.0)),
+    ("σ 3 cm", dict(range_noise=0.03)),
+    ("σ 5 cm", dict(range_noise=0.05)),
+    ("σ 1 cm + 1 % of range", dict(range_noise_per_m=0.01)),
+    ("dropout 30 %", dict(dropout=0.3)),
+    ("mixed pixels 50 %", dict(mixed_pixels=0.5)),
+    ("outdoor scene", dict(scene="outdoor")),
+    ("40 Hz, 1080 b, 270° (UST-10LX)", dict(scan_rate=40.0, beams=1081, fov=np.radians(270.0))),
+    ("10 Hz, 683 b, 240°, 5.6 m, 3 cm (URG-04LX)", dict(beams=683, fov=np.radians(240.0),
+                                                       range_max=5.6, range_noise=0.03)),
+    ("360°, 360 b, 5 cm", dict(range_noise=0.05)),
+]
+
+
+def factors_table(duration):
+    print("5. The lasers people own, one factor at a time (same route; refined z as the graph gets it)")
+    print(f"{'laser':44s} {'matches':>7s} | {'scale %: per match t, θ':>24s} | {'chained 1 s t, θ':>17s} "
+          f"| {'bias x, y mm; θ mrad':>22s} | {'σ robust':>22s} | ms/scan | rejected")
+    base = ScanMatcherConfig()
+    for label, kw in SENSOR_FACTORS:
+        data = make_sensor_dataset(duration, **kw)
+        r = run(data, base, True)
+        stamps = np.array([s.stamp for s in data.scans])
+        kt, kr = scale_errors(r)
+        ct, cr, _ = chained_scale(r, stamps)
+        e = r.errors * 1e3
+        print(f"{label:44s} {len(e):7d} | {kt * 100:+11.3f} {kr * 100:+11.3f} | {ct * 100:+8.3f} {cr * 100:+8.3f} "
+              f"| {fmt_mm(e.mean(0))} | {fmt_mm(robust_sigma(e))} | {np.median(r.times) * 1e3:7.2f} "
+              f"| {r.rejections.total()}", flush=True)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="shorter data, fewer configurations")
     parser.add_argument("--duration", type=float, default=None, help="s of simulated driving")
+    parser.add_argument("--factors", action="store_true", help="only table 5 (the lasers people own)")
     args = parser.parse_args()
     duration = args.duration or (60.0 if args.quick else 300.0)
+    if args.factors:
+        factors_table(args.duration or 120.0)
+        return
 
     data = make_dataset(duration)
     print(f"{len(data.scans)} scans, {duration:.0f} s at {SCAN_RATE:.0f} Hz, 360 beams, σ_range 10 mm, "

@@ -1,6 +1,7 @@
 """From sensor samples to graph keyframes: the one data path for live topics and bags.
 
-Every scan that the encoders cover becomes a keyframe. Its edges to the previous keyframes:
+Every scan that is matched (a fast laser's every n-th: frontend/decimation.py) and that the
+encoders cover becomes a keyframe. Its edges to the previous keyframes:
   - the wheel angle increments since the previous keyframe (odometry edge), unless the
     encoder stream broke in between (gap, clock jump), and
   - the laser's motion from the last scan the matcher accepted (laser edge), unless the
@@ -24,6 +25,7 @@ import numpy as np
 
 from sclam_ros.core import kinematics
 from sclam_ros.frontend import point_to_line
+from sclam_ros.frontend.decimation import ScanDecimator
 from sclam_ros.core.inputs import Rejections, Scan
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.frontend.scan_matching import (
@@ -75,6 +77,7 @@ class Frontend:
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
+        self.decimator = ScanDecimator()  # a fast laser is matched at about 10 Hz
 
     @property
     def registered(self) -> int:
@@ -84,7 +87,14 @@ class Frontend:
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list:
         return [self._keyframe(s) for s in self.sync.add_encoder(stamp, left_raw, right_raw)]
 
+    @property
+    def skipped_scans(self) -> int:
+        """Scans of a fast laser not matched (see frontend/decimation.py)."""
+        return self.decimator.skipped
+
     def add_scan(self, scan: Scan) -> list:
+        if not self.decimator.accept(scan.stamp):
+            return []
         keyframes = [self._keyframe(s) for s in self.sync.add_scan(scan)]
         pending = self.sync.pending
         if len(pending) == 1 and pending[0] is scan:

@@ -22,6 +22,11 @@ Scheme (issue: the online node):
   - Every `solve_every` merged keyframes the window is re-solved by LM, warm-started from
     the previous solve's poses. Inline by default; the node runs the solves on a thread
     of its own (solver_thread.py) via prepare_solve / run_solve / apply_solve.
+  - Each solve first judges which directions of the calibration the window and its priors
+    determine (core/observability.py, at the warm start) and locks the others at nominal.
+    What is reported (Estimate, CalibratorStatus) has every parameter such a direction
+    moves at its nominal value, flagged, with its prior σ; the solution itself, which the
+    next solve starts from, keeps the determined combinations.
 """
 from __future__ import annotations
 
@@ -35,6 +40,7 @@ from sclam_ros.core import graph as graph_mod, kinematics, se2
 from sclam_ros.frontend.pipeline import Frontend, Keyframe
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian, gaussian_of_prior, radius_change_statistic
+from sclam_ros.core.observability import Observability
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import factorize_information, levenberg_marquardt, marginal_covariance
 
@@ -60,12 +66,6 @@ CHANGE_CONFIRMATIONS = 3
 # are linearised around radii still converging from nominal, and against one of them the
 # statistic sat at 5-6 (p ≈ 0.05) on a 60 s run with no change.
 MIN_TESTED_HISTORY = POSE_WINDOW_DISTANCE
-# Scans closer than this to the last one used are skipped: the window merges scans into
-# keyframe_interval edges anyway, and a 40 Hz / 1080-beam laser matched scan by scan needs
-# a whole core (measured: bench/node_latency.py). A chain of fewer, longer scan matches
-# composes to the same edge with no more noise (the errors of consecutive matches are
-# negatively correlated, so they do not average out by matching more often).
-MIN_SCAN_INTERVAL = 0.09  # s: at most ~10 Hz of scans are matched
 # A window solve stops when an LM step lowers the cost by less than this fraction, or after
 # MAX_ITERATIONS steps: with a window cost of 50-500 (χ² ≈ dof), 1e-4 is a Δχ² of
 # 0.005-0.05, a parameter step well below its σ, and the next solve, warm-started a second
@@ -78,7 +78,8 @@ MAX_ITERATIONS = 3
 
 @dataclass
 class Estimate:
-    """The current calibration and its marginal uncertainty."""
+    """The current calibration and its marginal uncertainty, as it may be published: a
+    parameter the data did not determine is at its nominal value with its prior σ."""
 
     stamp: float
     values: dict  # the six CALIBRATION_KEYS
@@ -89,6 +90,8 @@ class Estimate:
     converged: bool = True
     # edge type ("odometry", "laser") -> (3,) RMS of the raw residuals (m, m, rad)
     residual_rms: dict = field(default_factory=dict)
+    # CALIBRATION_KEYS -> the data determines it (core/observability.py)
+    observable: dict = field(default_factory=lambda: dict.fromkeys(CALIBRATION_KEYS, True))
 
     def vector(self):
         return np.array([self.values[k] for k in CALIBRATION_KEYS])
@@ -100,8 +103,9 @@ class CalibratorStatus:
     thread or process while the calibrator goes on (see online/process.py)."""
 
     estimate: Optional[Estimate]
-    calibration: np.ndarray  # (6,) the values in use (estimate or nominal)
+    calibration: np.ndarray  # (6,) the values in use: the estimate's (unobserved at nominal)
     nominal: np.ndarray  # (6,)
+    observable: dict  # CALIBRATION_KEYS -> bool (all False before the first estimate)
     window_keyframes: int
     window_length: float  # m the radii are estimated from (poses + marginalised chunks)
     pose_window_length: float  # m of it still held as poses
@@ -178,7 +182,6 @@ class OnlineCalibrator:
         self._chunks_due = []  # (keyframes, metres) waiting to be marginalised
         self.forget_radii()  # the chunks' radii go, their (b, l) stays
         self._since_solve = 0
-        self._last_scan_stamp = None
         self._solved_poses = {}  # keyframe index -> pose of the last solve (warm start)
         self.solve_pending = False  # a solve is due (inline_solve False: the caller runs it)
         self.generation += 1
@@ -194,7 +197,6 @@ class OnlineCalibrator:
         self.estimate: Optional[Estimate] = None
         self.solves = 0
         self.unconverged_in_a_row = 0  # solves that hit MAX_ITERATIONS, since the last that did not
-        self.skipped_scans = 0  # scans not matched, see MIN_SCAN_INTERVAL
         self.reset_window()
 
     def set_window_distance(self, metres: float) -> None:
@@ -216,11 +218,8 @@ class OnlineCalibrator:
         return self.add_keyframes(self.frontend.add_encoder(stamp, left_raw, right_raw))
 
     def add_scan(self, scan) -> Optional[Estimate]:
-        last = self._last_scan_stamp
-        if last is not None and 0.0 <= scan.stamp - last < MIN_SCAN_INTERVAL:
-            self.skipped_scans += 1
-            return None
-        self._last_scan_stamp = scan.stamp
+        # A fast laser's scans are thinned to ~10 Hz by the front end (frontend/decimation.py),
+        # as in the batch calibration.
         return self.add_keyframes(self.frontend.add_scan(scan))
 
     def add_keyframes(self, keyframes) -> Optional[Estimate]:
@@ -258,13 +257,18 @@ class OnlineCalibrator:
         return self.pose_window_length() + self.history_length()
 
     def status(self) -> CalibratorStatus:
+        estimate = self.estimate
         return CalibratorStatus(
-            estimate=self.estimate, calibration=self.calibration.copy(),
-            nominal=self.nominal.copy(), window_keyframes=len(self.window),
+            estimate=estimate,
+            calibration=self.nominal.copy() if estimate is None else estimate.vector(),
+            nominal=self.nominal.copy(),
+            observable=(dict.fromkeys(CALIBRATION_KEYS, False) if estimate is None
+                        else dict(estimate.observable)),
+            window_keyframes=len(self.window),
             window_length=self.window_length(), pose_window_length=self.pose_window_length(),
             window_distance=float(self.params.window_distance),
             radius_changes=self.radius_changes, change_statistic=self.change_statistic,
-            solves=self.solves, skipped_scans=self.skipped_scans,
+            solves=self.solves, skipped_scans=self.frontend.skipped_scans,
             unconverged_in_a_row=self.unconverged_in_a_row,
         )
 
@@ -405,7 +409,8 @@ class OnlineCalibrator:
         prior = self.prior() + gaussian_of_prior(self.nominal, graph_mod.prior_sigmas(self.nominal))
         return SolveJob(self.generation, [kf.index for kf in window], float(inputs.stamps[-1]),
                         problem, len(window), self.window_length(), prior,
-                        change_testable=self.history_length() >= MIN_TESTED_HISTORY)
+                        change_testable=self.history_length() >= MIN_TESTED_HISTORY,
+                        nominal=self.nominal.copy())
 
     def apply_solve(self, outcome: Optional["SolveOutcome"]) -> Optional[Estimate]:
         if outcome is None:
@@ -418,34 +423,30 @@ class OnlineCalibrator:
             self.rejections.add("online_solve_non_finite")
             return None
         self.calibration = estimate
-        self._update_frontend_calibration(estimate, outcome.covariance)
+        observability = outcome.observability
+        reported = observability.reported(estimate, job.nominal)
+        # The scan matcher's odometry guess uses what may be published: the parameters the
+        # data has determined, the others at nominal. A first solve on a few keyframes had
+        # put the wheel base 0.1 m off; seeded with it, the matcher lost 30 of 600 scans of
+        # a live run (test_online_live).
+        self.frontend.calibration = reported.copy()
         self._solved_poses = dict(zip(job.keyframe_indices, outcome.poses))
         self.solves += 1
         self.unconverged_in_a_row = 0 if outcome.converged else self.unconverged_in_a_row + 1
-        cov = outcome.covariance
+        cov = observability.reported_covariance(outcome.covariance)
         self.estimate = Estimate(
             stamp=job.stamp,
-            values=graph_mod.as_dict(estimate),
+            values=graph_mod.as_dict(reported),
             sigma=graph_mod.as_dict(np.sqrt(np.clip(np.diag(cov), 0, None))),
             covariance=cov,
             keyframes_in_window=job.keyframes_in_window,
             window_distance=job.window_distance,
             converged=outcome.converged,
             residual_rms=outcome.residual_rms,
+            observable=observability.as_dict(),
         )
-        self._test_for_radius_change(job, estimate, cov)
+        self._test_for_radius_change(job, estimate, outcome.covariance)
         return self.estimate
-
-    def _update_frontend_calibration(self, estimate, cov) -> None:
-        """The scan matcher's odometry guess uses the parameters the data already pins
-        down (σ below half the prior's); the others keep their value. A first solve on a
-        few keyframes can put the wheel base 0.1 m off with σ to match; seeded with it,
-        the matcher lost 30 of 600 scans of a live run (test_online_live)."""
-        sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        known = sigma < 0.5 * graph_mod.prior_sigmas(self.nominal)
-        calibration = self.frontend.calibration.copy()
-        calibration[known] = estimate[known]
-        self.frontend.calibration = calibration
 
     def _test_for_radius_change(self, job, mean, cov) -> None:
         if not job.change_testable:
@@ -470,6 +471,7 @@ class SolveJob:
     window_distance: float
     prior: Gaussian  # every prior of the problem, for the change test
     change_testable: bool  # enough marginalised radii information to test against
+    nominal: np.ndarray  # (6,) where undetermined directions are locked
 
 
 @dataclass
@@ -480,6 +482,7 @@ class SolveOutcome:
     poses: np.ndarray
     converged: bool
     residual_rms: dict
+    observability: Observability
 
 
 def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
@@ -489,16 +492,19 @@ def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
     if job is None:
         return None
     problem = job.problem
+    # Judged at the warm start, before the lock is added (see Observability.of_problem).
+    observability = Observability.of_problem(problem, graph_mod.prior_sigmas(job.nominal))
+    problem.factors.extend(observability.lock(job.nominal))
     result = levenberg_marquardt(problem, max_iterations=MAX_ITERATIONS,
                                  relative_tolerance=RELATIVE_TOLERANCE)
     calibration = graph_mod.calibration_of(result.values)
     if not np.all(np.isfinite(calibration)):
         return SolveOutcome(job, calibration, np.full((6, 6), np.nan), result.values["poses"],
-                            False, {})
+                            False, {}, observability)
     _, _, factorized = factorize_information(problem, result.values, result.system)
     cov = marginal_covariance(problem, result.values, ["odometry", "laser"], lu=factorized)
     return SolveOutcome(job, calibration, cov, result.values["poses"], result.converged,
-                        residual_rms(problem, result.values, result.system))
+                        residual_rms(problem, result.values, result.system), observability)
 
 
 @dataclass
