@@ -155,6 +155,30 @@ def test_gap_and_counter_reset_break_segments_and_pairs_are_dropped():
     np.testing.assert_allclose([inc.dt for inc in incs], 0.1, atol=1e-9)
 
 
+def test_slow_odometry_is_interpolated_and_only_a_real_gap_breaks_it():
+    """A base reporting at 1.6 Hz (0.625 s apart, beyond the default 0.5 s gap): after its
+    first steps the stream judges gaps by its own period, every scan between samples gets
+    exact wheel angles, and a silence of ten periods still starts a new segment."""
+    stream = EncoderStream(ticks_per_revolution=TICKS)
+    sync = ScanSynchronizer(stream)
+    period, speed = 0.625, 100.0  # s, ticks/s
+    synced = []
+    for i in range(60):
+        t = period * i
+        if not 30 <= i < 40:  # 6.25 s of silence
+            synced += sync.add_encoder(t, speed * t, 2 * speed * t)
+        for k in range(6):
+            synced += sync.add_scan(scan_at(t + 0.1 * k + 0.01))
+    synced += sync.flush()
+    assert stream.segment_breaks["gap"] == 1 + 3  # the silence, and the first steps (rate unknown)
+    late = [s for s in synced if s.scan.stamp > 4 * period]
+    assert len(late) > 250
+    for s in late:
+        np.testing.assert_allclose(s.wheels.angles, [speed * s.scan.stamp * RAD_PER_TICK,
+                                                     2 * speed * s.scan.stamp * RAD_PER_TICK], rtol=1e-9)
+    assert not any(30 * period < s.scan.stamp < 39 * period for s in synced)
+
+
 def test_scans_wait_for_late_encoders_and_are_dropped_after_the_latency_limit():
     stream = EncoderStream(config=SyncConfig(max_scan_latency=0.5))
     sync = ScanSynchronizer(stream)

@@ -26,13 +26,17 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator, Optional
 
 import numpy as np
 
 from sclam_ros.core.inputs import EncoderSample, Rejections, Scan
+
+
+PERIOD_SAMPLE = 20  # encoder steps the stream's own period is judged from
+MIN_PERIOD_SAMPLE = 3  # ... once it has seen at least this many
 
 
 @dataclass
@@ -42,7 +46,10 @@ class SyncConfig:
     # Longest interval between two encoder samples that is still interpolated across; a
     # longer silence starts a new segment (the counter may have wrapped more than once,
     # the robot may have been bumped, a driver restarted). 0.5 s is 10 periods at 20 Hz.
+    # Odometry slower than that (a robot base reporting at 1-2 Hz) is judged by its own
+    # rate instead: a gap is then more than gap_periods of its median period.
     max_gap: float = 0.5
+    gap_periods: float = 5.0
     # A stamp earlier than the newest one by more than this is a clock jump (a bag played in
     # a loop, a clock set back): the history is dropped and a new segment starts. Smaller
     # steps back are single out-of-order samples and are rejected.
@@ -98,6 +105,14 @@ class EncoderStream:
         self.segment_cause: dict[int, str] = {}
         self._last_raw: Optional[tuple[float, float]] = None
         self._last_stamp: Optional[float] = None
+        self._periods: deque = deque(maxlen=PERIOD_SAMPLE)  # recent steps between samples
+
+    @property
+    def max_gap(self) -> float:
+        """The longest step between samples still interpolated across (see SyncConfig)."""
+        if len(self._periods) < MIN_PERIOD_SAMPLE:
+            return self.config.max_gap
+        return max(self.config.max_gap, self.config.gap_periods * float(np.median(self._periods)))
 
     @classmethod
     def from_params(cls, params, config=None, rejections=None) -> "EncoderStream":
@@ -122,8 +137,13 @@ class EncoderStream:
                 # The clock went back: nothing before can be paired with what follows.
                 self.clear()
                 cause = "clock_jump_backward"
-            elif step > self.config.max_gap:
-                cause = "gap"
+            else:
+                # Every step counts toward the period, gaps too: the median ignores the rare
+                # real gap, and a slow stream's first steps (all "gaps" by the default limit)
+                # must be able to teach the stream its rate.
+                if step > self.max_gap:
+                    cause = "gap"
+                self._periods.append(step)
         # The history holds unwrapped positions in raw units (integer tick counts stay exact
         # in a float64 up to 2^53); radians are produced on the way out.
         left, right = left_raw, right_raw
@@ -355,7 +375,9 @@ class ScanSynchronizer:
             scan = self._pending[0]
             covered = latest is not None and scan.stamp <= latest
             if not covered:
-                if newest_scan is not None and newest_scan - scan.stamp > self.config.max_scan_latency:
+                # Slow odometry (1-2 Hz) may take up to its gap allowance to cover a scan.
+                wait = max(self.config.max_scan_latency, self.stream.max_gap)
+                if newest_scan is not None and newest_scan - scan.stamp > wait:
                     self._pending.pop(0)
                     self.rejections.add("scan_no_encoder_coverage")
                     continue
