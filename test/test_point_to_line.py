@@ -59,3 +59,45 @@ def test_too_few_points_fall_back_to_the_initial_guess():
     # A scan without lines has no reference at all: the initial guess stands.
     z, used = point_to_line.refine(None, line, z0)
     assert used == 0 and np.allclose(z, z0)
+
+
+def test_refinement_never_worse_than_kiss_icp_outdoors():
+    """Outdoors (tree trunks, poles, cars) the few "lines" a scan has join points of different
+    objects; a refinement that locks onto them moved matches by up to a metre. Corrections
+    beyond MAX_CORRECTION keep KISS-ICP's answer, so refined matches are no worse than it."""
+    from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
+    from sclam_ros.sim.motion import TrueKinematics
+    from sclam_ros.sim.sensors import LaserModel
+    from sclam_ros.sim.trajectory import simulate_trajectory
+    from sclam_ros.sim.world import outdoor_world
+
+    world = outdoor_world()
+    trajectory = simulate_trajectory(world, TrueKinematics(0.1, 0.1, 0.5), 40.0, 1, robot_radius=0.3)
+    stamps = np.arange(0.0, trajectory.duration, 0.1)
+    poses = trajectory.pose_at(stamps)
+    model = LaserModel()
+    rng = np.random.default_rng(0)
+    scans = [model.measure(world.raycast(p, model.angles(), model.range_max), rng) for p in poses]
+    from sclam_ros.core.inputs import Scan
+
+    p99 = {}
+    refined_matcher = None
+    for refine in (False, True):
+        matcher = ScanMatcher()
+        refined_matcher = point_to_line.RefinedScanMatcher(matcher) if refine else None
+        errors = []
+        for i, (t, ranges) in enumerate(zip(stamps, scans)):
+            scan = Scan(float(t), ranges, model.angle_min, model.angle_increment, model.range_min, model.range_max)
+            guess = se2.between(poses[i], poses[i - 1]) if i else None
+            points = scan_to_points(scan)
+            if refine:
+                match, z = refined_matcher.add_scan(scan, guess, points)
+            else:
+                match = matcher.add_scan(scan, guess, points)
+                z = None if match is None else match.z
+            if match is not None:
+                truth = se2.between(poses[match.index_to], poses[match.index_from])
+                errors.append(np.hypot(*(z[:2] - truth[:2])))
+        p99[refine] = np.percentile(errors, 99)
+    assert refined_matcher.unrefined["correction_too_large"] > 0
+    assert p99[True] <= 1.2 * p99[False], p99
