@@ -9,7 +9,7 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/scripts/setup_venv.sh"
 source "$root/scripts/env.sh"
 cd "$root"
-ros_tests=(test/test_node.py test/test_online_live.py)
+ros_tests=(test/test_node.py test/test_online_live.py test/test_observability_live.py)
 ignore=()
 for t in "${ros_tests[@]}"; do ignore+=(--ignore "$t"); done
 

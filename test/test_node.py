@@ -232,8 +232,9 @@ def test_node_publishes_odometry_and_converges_to_truth(graph, recording):
              == [float(v) for v in _published_wheels(node)], what="the last wheel parameters")
     wheels = graph.messages("/sclam/wheel_parameters")[-1]
     assert [d.label for d in wheels.layout.dim] == [
-        "value,sigma", "wheel_radius_left,wheel_radius_right,wheel_base"]
-    values, sigmas = np.reshape(wheels.data, (2, 3))
+        "value,sigma,observable", "wheel_radius_left,wheel_radius_right,wheel_base"]
+    values, sigmas, observable = np.reshape(wheels.data, (3, 3))
+    assert list(observable) == [1.0, 1.0, 1.0]
     expected = [truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"]]
     np.testing.assert_allclose(values, expected, rtol=0.03)
     assert np.all(sigmas > 0) and np.all(sigmas < 0.05 * values)
@@ -262,7 +263,8 @@ def wait_until_settled(node, quiet=1.0):
 def _published_wheels(node):
     est = node.calibrator.estimate
     keys = ("wheel_radius_left", "wheel_radius_right", "wheel_base")
-    return [est.values[k] for k in keys] + [est.sigma[k] for k in keys]
+    return ([est.values[k] for k in keys] + [est.sigma[k] for k in keys]
+            + [float(est.observable[k]) for k in keys])
 
 
 def test_reset_and_save_services(graph, recording, tmp_path):

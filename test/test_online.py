@@ -37,7 +37,8 @@ def load_change(tmp_path_factory):
 
 def test_track_csv_has_the_documented_columns(load_change):
     _, _, rows = load_change
-    assert list(rows[0]) == ["t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEYS)]
+    assert list(rows[0]) == ["t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEYS),
+                             *(f"observable_{k}" for k in CALIBRATION_KEYS)]
     t = np.array([float(r["t"]) for r in rows])
     assert len(rows) > 100 and np.all(np.diff(t) > 0)
     for row in rows:

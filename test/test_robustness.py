@@ -1,7 +1,10 @@
 """Never crash: each bad input of issue 13, made from a short simulated recording, through
 `sclam` as a user runs it. Unusable input: exit status 2, one line
 `sclam <command>: error: <reason>` on stderr, nothing written. A bad message inside a good
-recording: exit status 0, the message dropped, counted under its reason and warned about."""
+recording: exit status 0, the message dropped, counted under its reason and warned about.
+Never silently wrong: a recording that contradicts its configuration (swapped or backwards
+encoders, header stamps on two clocks, scans from two frames) is refused naming the fix, or
+repaired and warned about, on stderr and in --json."""
 import dataclasses
 import json
 import math
@@ -12,21 +15,30 @@ import sqlite3
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sclam_ros.cli.main import main
+from sclam_ros.core import wiring
+from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.inputs import Scan
+from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams, atomic_write_text
+from sclam_ros.core.solver import remaining_step
 from sclam_ros.frontend import point_to_line
 from sclam_ros.frontend.scan_matching import ScanMatcher
 from sclam_ros.io import bag
+from sclam_ros.io.messages import stamp_to_sec
+from sclam_ros.io.recording import read_recording
 from sclam_ros.sim import simulate
 
 SCAN = "sensor_msgs/msg/LaserScan"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 VENV_BIN = Path(sys.executable).parent
+ROS_ENV = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100),
+               RMW_IMPLEMENTATION=os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"))
 
 
 @pytest.fixture(scope="module")
@@ -43,15 +55,16 @@ def mcap_recording(tmp_path_factory):
     return out
 
 
-def rewrite(src, dst, change_scan):
+def rewrite(src, dst, change_scan=None, change_joint_state=None):
     """Copy the encoder and scan topics of `src` into a new bag `dst` (with its params.yaml),
-    each scan message replaced by change_scan(scan number, message)."""
+    each message replaced by change_scan / change_joint_state(number on its topic, message)."""
     with bag.BagWriter(dst) as writer:
-        number = 0
+        numbers = Counter()
         for topic, t, msg in bag.iter_messages(src, ["/joint_states", "/scan"]):
-            if topic == "/scan":
-                msg = change_scan(number, msg)
-                number += 1
+            change = change_scan if topic == "/scan" else change_joint_state
+            if change is not None:
+                msg = change(numbers[topic], msg)
+            numbers[topic] += 1
             writer.write(topic, SCAN if topic == "/scan" else JOINT_STATE, msg, t)
     shutil.copy(Path(src) / "params.yaml", Path(dst) / "params.yaml")
     return Path(dst)
@@ -113,6 +126,13 @@ def test_scans_with_impossible_angles_are_counted_rejections(recording, tmp_path
         assert f"rejecting /scan messages (counted): {reason}" in warnings
         assert f"{reason}: {count}" in warnings  # the summary of counted rejections
     assert "Traceback" not in capsys.readouterr().err
+    result = json.loads(out.read_text())  # the same counts in --json
+    for reason, count in expected.items():
+        assert result["rejected"][reason] == count
+    scans = result["messages"]["/scan"]
+    assert scans["used"] == scans["read"] - len(BAD_GEOMETRY) and scans["corrupt"] == 0
+    assert any("rejecting /scan messages (counted): scan_zero_angle_increment" in w
+               for w in result["warnings"])
 
 
 def test_negative_increment_is_the_same_scan(recording, tmp_path, capsys):
@@ -238,7 +258,7 @@ def test_corrupt_db3_messages_are_skipped_counted_and_the_rest_used(recording, t
 
     counts = _read_counts(broken).as_dict()
     for topic in ("/scan", "/joint_states"):
-        assert counts[topic] == {"read": len(ids[topic]) - 1, "corrupt": 1}
+        assert counts[topic] == {"read": len(ids[topic]) - 1, "used": 0, "corrupt": 1}
 
     caplog.clear()
     rc, out = calibrate(broken, broken / "params.yaml", tmp_path)
@@ -321,10 +341,8 @@ def _catches(pid, signum) -> bool:
 
 def test_play_ends_cleanly_on_sigterm(recording, tmp_path):
     pytest.importorskip("rclpy")
-    env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100),
-               RMW_IMPLEMENTATION=os.environ.get("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp"))
     process = subprocess.Popen([str(VENV_BIN / "sclam"), "play", str(recording)], cwd=tmp_path,
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                               env=ROS_ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 60
         while not _catches(process.pid, signal.SIGTERM):
@@ -338,3 +356,230 @@ def test_play_ends_cleanly_on_sigterm(recording, tmp_path):
     output = process.stdout.read()
     assert code == 0, output
     assert "Traceback" not in output and "sclam play: published" in output
+
+
+# --- silently wrong: the recording contradicts the configuration --------------------------
+
+
+@pytest.fixture(scope="module")
+def good(recording, tmp_path_factory):
+    """--json of the unchanged recording, to compare the repaired cases with."""
+    rc, out = calibrate(recording, recording / "params.yaml", tmp_path_factory.mktemp("good_json"))
+    assert rc == 0
+    return json.loads(out.read_text())
+
+
+def test_json_says_converged_observable_warnings_rejected_and_messages(recording, good):
+    assert good["converged"] is True
+    assert set(good["observable"]) == set(CALIBRATION_KEYS)
+    assert all(isinstance(value, bool) for value in good["observable"].values())
+    assert isinstance(good["warnings"], list) and isinstance(good["rejected"], dict)
+    info = bag.topic_info(recording)
+    for topic in ("/joint_states", "/scan"):
+        counts = good["messages"][topic]
+        assert counts["read"] == info[topic][1] and counts["corrupt"] == 0
+        assert counts["used"] == counts["read"]
+
+
+def test_converged_means_a_further_step_moves_no_parameter(recording):
+    """The criterion behind "converged": at the solution a Gauss-Newton step moves nothing
+    by 0.1σ; from a calibration 3σ off it does (so the step measures what is left)."""
+    params = SclamParams.from_yaml(recording / "params.yaml")
+    result = calibrate_keyframes(read_recording(recording, params).keyframes, params)
+    sigma = np.array([result.sigma[k] for k in CALIBRATION_KEYS])
+    problem, blocks = result.problem, ["odometry", "laser"]
+    step, _ = remaining_step(problem, problem.values, blocks)
+    assert np.all(np.abs(step) < 0.1 * sigma), step / sigma
+    moved = problem.values.copy()
+    moved["odometry"] = moved["odometry"] + 3.0 * sigma[:3]
+    step, _ = remaining_step(problem, moved, blocks)
+    assert np.max(np.abs(step[:3]) / sigma[:3]) > 1.0, step / sigma
+
+
+def swap_joint_names(number, msg):
+    return dataclasses.replace(msg, name=list(reversed(msg.name)))
+
+
+def negate(*joints):
+    def change(number, msg):
+        position = np.array(msg.position, float)
+        position[[msg.name.index(j) for j in joints]] *= -1.0
+        return dataclasses.replace(msg, position=position)
+    return change
+
+
+WIRING_CASES = {  # change of the JointState messages -> (what is said, the fix named)
+    "swapped": (swap_joint_names, "the left and right wheel joints are swapped",
+                {"left_wheel_joint": "right_wheel_joint", "right_wheel_joint": "left_wheel_joint"}),
+    "left_backwards": (negate("left_wheel_joint"),
+                       "the left wheel's encoder (left_wheel_joint) counts backwards",
+                       {"left_encoder_sign": -1}),
+    "both_backwards": (negate("left_wheel_joint", "right_wheel_joint"),
+                       "the left wheel's encoder (left_wheel_joint) counts backwards and the "
+                       "right wheel's encoder (right_wheel_joint) counts backwards",
+                       {"left_encoder_sign": -1, "right_encoder_sign": -1}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(WIRING_CASES))
+def test_swapped_or_backwards_encoders_are_refused_with_the_fix(recording, tmp_path, capsys, case):
+    change, said, fix = WIRING_CASES[case]
+    bad = rewrite(recording, tmp_path / case, change_joint_state=change)
+    rc, out = calibrate(bad, bad / "params.yaml", tmp_path)
+    assert rc == 2 and not out.exists()
+    fix_text = "set " + ", ".join(f"{k}: {v}" for k, v in fix.items())
+    line = assert_one_line_error(capsys, "calibrate", "contradict the laser", said, fix_text)
+    assert "; or " not in line  # a drive with turns and straights leaves one explanation
+    # With the parameters it names, the same recording calibrates to the truth.
+    fixed = dataclasses.replace(SclamParams.from_yaml(bad / "params.yaml"), **fix)
+    fixed.write_yaml(tmp_path / "fixed.yaml")
+    rc, out = calibrate(bad, tmp_path / "fixed.yaml", tmp_path)
+    assert rc == 0, capsys.readouterr().err
+    result, truth = json.loads(out.read_text()), json.loads((recording / "truth.json").read_text())
+    for key in CALIBRATION_KEYS:
+        assert abs(result[key] - truth[key]) < 4 * result["sigma"][key], key
+
+
+def test_the_named_fix_undoes_each_wiring(recording):
+    """Every signed permutation of the two wheels, applied to the encoder increments of a
+    good recording: named, and the parameters named read the wheels right again."""
+    params = SclamParams.from_yaml(recording / "params.yaml")
+    keyframes = read_recording(recording, params).keyframes
+    assert wiring.wiring_problem(keyframes, params) is None
+    for matrix in list(wiring._wirings())[1:]:  # the first is the identity
+        miswired = [dataclasses.replace(kf, dphi=None if kf.dphi is None else matrix @ kf.dphi)
+                    for kf in keyframes]
+        reason = wiring.wiring_problem(miswired, params)
+        assert reason is not None and "; or " not in reason, matrix
+        settings = reason.split(": set ")[1].split(" (")[0]
+        fix = dict(item.split(": ") for item in settings.split(", "))
+        fixed = dataclasses.replace(params, **{k: float(v) if "sign" in k else v
+                                               for k, v in fix.items()})
+        slots = {params.left_wheel_joint: 0, params.right_wheel_joint: 1}
+        for kf, bad in zip(keyframes, miswired):
+            if kf.dphi is not None:  # what the fixed parameters read from the same slots
+                read = [fixed.left_encoder_sign * bad.dphi[slots[fixed.left_wheel_joint]],
+                        fixed.right_encoder_sign * bad.dphi[slots[fixed.right_wheel_joint]]]
+                assert np.allclose(read, kf.dphi), (matrix, reason)
+
+
+def shift_header(offset):
+    def change(number, msg):
+        stamp = bag.time_msg(stamp_to_sec(msg.header.stamp) + offset)
+        return dataclasses.replace(msg, header=dataclasses.replace(msg.header, stamp=stamp))
+    return change
+
+
+@pytest.mark.parametrize("topic,offset", [("/joint_states", 3.0), ("/scan", -5.0)])
+def test_header_stamps_of_another_clock_are_moved_onto_one(recording, good, tmp_path, caplog,
+                                                            topic, offset):
+    key = "change_scan" if topic == "/scan" else "change_joint_state"
+    bad = rewrite(recording, tmp_path / "bad", **{key: shift_header(offset)})
+    rc, out = calibrate(bad, bad / "params.yaml", tmp_path)
+    assert rc == 0
+    result = json.loads(out.read_text())
+    said = f"{topic} header stamps are {offset:+.3f} s off their record stamps"
+    assert any(said in w for w in result["warnings"]), result["warnings"]
+    assert said in caplog.text
+    for key in CALIBRATION_KEYS:  # one time base: the calibration of the unshifted recording
+        assert abs(result[key] - good[key]) < 0.1 * good["sigma"][key], key
+
+
+def test_scans_of_another_frame_are_a_warning_on_stderr_and_in_json(recording, tmp_path):
+    def relabel(number, msg):
+        if number < 150:
+            return msg
+        return dataclasses.replace(msg, header=dataclasses.replace(msg.header, frame_id="laser_2"))
+
+    bad = rewrite(recording, tmp_path / "bad", change_scan=relabel)
+    out = tmp_path / "calibration.json"
+    proc = subprocess.run([str(VENV_BIN / "sclam"), "calibrate", str(bad), "--params",
+                           str(bad / "params.yaml"), "--json", str(out), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    warnings = json.loads(out.read_text())["warnings"]
+    assert any("frame_id changes" in w and "laser: 150 scans" in w and "laser_2" in w
+               for w in warnings), warnings
+    stderr = [line for line in proc.stderr.splitlines() if "warning" in line]
+    assert all(line.startswith("sclam calibrate: warning: ") for line in stderr), proc.stderr
+    assert [line[len("sclam calibrate: warning: "):] for line in stderr] == warnings
+
+
+# --- sclam_node's command line ------------------------------------------------------------
+
+
+def _node(tmp_path, *args):
+    return subprocess.run([str(VENV_BIN / "sclam_node"), *args], cwd=tmp_path,
+                          env=ROS_ENV, capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_node_help_prints_usage_and_starts_nothing(tmp_path):
+    pytest.importorskip("rclpy")
+    proc = _node(tmp_path, "--help")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("usage: sclam_node") and "wheel_radius_left" in proc.stdout
+    assert "calibrating from" not in proc.stdout + proc.stderr  # the node never started
+
+
+def test_node_with_broken_yaml_is_one_line_and_exit_2(tmp_path):
+    pytest.importorskip("rclpy")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("sclam:\n  ros__parameters: [unclosed\n")
+    proc = _node(tmp_path, "--ros-args", "--params-file", str(broken))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("sclam_node: error: "), proc.stderr
+    assert "not valid YAML" in lines[0] and "broken.yaml" in lines[0]
+
+
+def test_node_warns_unknown_parameters_by_name(recording, tmp_path):
+    pytest.importorskip("rclpy")
+    params = tmp_path / "params.yaml"
+    params.write_text((recording / "params.yaml").read_text().replace(
+        "ros__parameters:", "ros__parameters:\n    wheel_bas: 0.4\n    laser_frame: laser"))
+    log = tmp_path / "node.log"
+    with open(log, "w") as out:
+        process = subprocess.Popen([str(VENV_BIN / "sclam_node"), "--ros-args", "--params-file",
+                                    str(params)], cwd=tmp_path, env=ROS_ENV,
+                                   stdout=out, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while "calibrating from" not in log.read_text():
+            assert process.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.05)
+    finally:
+        process.kill()  # what is tested was said at start-up
+        process.wait()
+    text = log.read_text()
+    said = "unknown parameter(s) ignored: laser_frame (base_frame?), wheel_bas (wheel_base?)"
+    assert said in text, text
+    assert "Traceback" not in text
+
+
+# --- saving ---------------------------------------------------------------------------------
+
+
+def test_a_killed_save_leaves_the_old_file_and_the_next_save_no_temporary_file(tmp_path):
+    """SIGKILL while atomic_write_text writes (no `finally` runs): the old file stays whole,
+    and the next save removes the temporary file the killed one left."""
+    target = tmp_path / "calibration.yaml"
+    target.write_text("old\n")
+    writer = ("import sys; from sclam_ros.core.params import atomic_write_text; "
+              "atomic_write_text(sys.argv[1], 'x' * 100_000_000)")
+    for _ in range(5):  # the kill must land while the temporary file exists
+        process = subprocess.Popen([sys.executable, "-c", writer, str(target)])
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob(".calibration.yaml.*.tmp")) and process.poll() is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.001)
+        process.kill()
+        process.wait()
+        if list(tmp_path.glob(".calibration.yaml.*.tmp")):
+            break
+    else:
+        pytest.fail("the writer was never caught writing")
+    assert target.read_text() == "old\n"
+    atomic_write_text(target, "new\n")
+    assert target.read_text() == "new\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calibration.yaml"]

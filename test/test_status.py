@@ -12,7 +12,7 @@ import pytest
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
 from sclam_ros.io.recording import iter_outputs
-from sclam_ros.online.status import OK, WARN, diagnostic_status, observability, wheel_parameters_data
+from sclam_ros.online.status import OK, WARN, diagnostic_status, wheel_parameters_data
 from sclam_ros.online.window import OnlineCalibrator
 from sclam_ros.sim import simulate
 
@@ -35,7 +35,9 @@ def test_no_estimate_is_a_warning_asking_to_drive():
     calibrator = OnlineCalibrator(params)
     level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
     assert level == WARN and "no estimate" in message
-    assert values["last_solve_converged"] == "n/a"
+    # Nothing to say yet is said by absence, never by "nan" or "n/a".
+    for key in ("last_solve_converged", "radius_change_chi2", "residual_rms"):
+        assert key not in values
     assert not any(key.endswith("_observable") for key in values)
 
 
@@ -45,7 +47,7 @@ def test_status_of_a_calibrated_run(tracked):
     rejections = Rejections()
     rejections.add("scan_empty")
     level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, rejections)
-    observable = observability(calibrator.estimate, calibrator.nominal)
+    observable = calibrator.status().observable
     # A 60 s random drive with turns both ways excites every parameter.
     assert all(observable.values()), observable
     for key in CALIBRATION_KEYS:
@@ -63,19 +65,20 @@ def test_status_of_a_calibrated_run(tracked):
 def test_unobserved_parameters_are_named(tracked):
     params, calibrator, _ = tracked
     estimate = calibrator.estimate
-    saved = dict(estimate.sigma)
     try:
-        estimate.sigma["laser_y"] = 1e3  # as uncertain as no data at all
+        estimate.observable["laser_y"] = False  # as a straight-only drive leaves it
         level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
     finally:
-        estimate.sigma.update(saved)
+        estimate.observable["laser_y"] = True
     assert level == WARN and "laser_y" in message
     assert values["laser_y_observable"] == "false"
+    assert not any(v in ("nan", "n/a") for v in map(str, values.values())), values
 
 
 def test_wheel_parameters_rows(tracked):
     _, calibrator, _ = tracked
-    data = wheel_parameters_data(calibrator.estimate.values, calibrator.estimate.sigma)
-    values, sigmas = np.reshape(data, (2, 3))
+    data = wheel_parameters_data(calibrator.estimate)
+    values, sigmas, observable = np.reshape(data, (3, 3))
     np.testing.assert_array_equal(values, [calibrator.estimate.values[k] for k in ODOMETRY_KEYS])
     np.testing.assert_array_equal(sigmas, [calibrator.estimate.sigma[k] for k in ODOMETRY_KEYS])
+    np.testing.assert_array_equal(observable, [1.0, 1.0, 1.0])

@@ -29,8 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--track", metavar="OUT.csv",
                         help="instead of the batch solve, run the online calibrator of sclam_node "
                              "(sliding window) over the recording as fast as it can and write its "
-                             "estimates over time: t (s, header stamp), the six parameters and "
-                             "sigma_<name> for each")
+                             "estimates over time: t (s, header stamp), the six parameters, "
+                             "sigma_<name> and observable_<name> (1 or 0: a parameter the data "
+                             "has not observed is at its nominal value) for each")
     parser.add_argument("--workers", type=int, default=1,
                         help="register the recording in this many time chunks in parallel on a "
                              "Dask LocalCluster of as many worker processes, joined in one graph "
@@ -64,7 +65,8 @@ def format_table(result, truth=None) -> str:
     return "\n".join(lines)
 
 
-TRACK_COLUMNS = ("t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEYS))
+TRACK_COLUMNS = ("t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEYS),
+                 *(f"observable_{k}" for k in CALIBRATION_KEYS))
 
 
 def track(bag, params, progress=None):
@@ -81,7 +83,8 @@ def track(bag, params, progress=None):
     def record(estimate):
         if estimate is not None:
             rows.append([estimate.stamp, *(estimate.values[k] for k in CALIBRATION_KEYS),
-                         *(estimate.sigma[k] for k in CALIBRATION_KEYS)])
+                         *(estimate.sigma[k] for k in CALIBRATION_KEYS),
+                         *(int(estimate.observable[k]) for k in CALIBRATION_KEYS)])
 
     # The messages in record order through the same calls the node makes in its callbacks.
     for estimate in iter_outputs(bag, params, calibrator, progress):
@@ -117,10 +120,18 @@ def _run_track(args, params, truth) -> int:
           f"({estimate.keyframes_in_window} keyframes); last estimate at t = {estimate.stamp:.3f} s")
     shown = SimpleNamespace(estimate=estimate.values, sigma=estimate.sigma,
                             nominal=dict(zip(CALIBRATION_KEYS, map(float, calibrator.nominal))),
-                            observable={k: True for k in CALIBRATION_KEYS})
+                            observable=estimate.observable)
     print(format_table(shown, truth))
+    _explain_unobserved(shown.observable)
     print(f"track: {args.track}")
     return 0
+
+
+def _explain_unobserved(observable) -> None:
+    if not all(observable.values()):
+        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks the "
+              "motion that excites them (turns in both directions for the wheel base and the "
+              "laser offset).")
 
 
 def _register(args, params, progress):
@@ -143,6 +154,11 @@ def _warn_about_input(rejections, frontend) -> None:
     """Say what the data path dropped or could not refine, so nothing is lost silently."""
     if rejections.total():
         log.warning("rejected input (counted, not used): %s", rejections)
+    if frontend is not None and frontend.matcher.odometry_guess_failures:
+        log.warning("%d scan(s) could only be registered from the previous scan's motion: the "
+                    "wheel odometry under the nominal calibration predicted them badly (nominal "
+                    "values far off, or the encoders wired wrong)",
+                    frontend.matcher.odometry_guess_failures)
     unrefined = frontend.refined_matcher.unrefined if frontend is not None else {}
     if unrefined.get("no_lines"):
         log.warning("%d scan match(es) kept KISS-ICP's motion without the point-to-line "
@@ -150,10 +166,31 @@ def _warn_about_input(rejections, frontend) -> None:
                     "can be slightly short", unrefined["no_lines"])
 
 
+class _Warnings(logging.Handler):
+    """Every warning logged during the run, one line each, for --json (the same ones reach
+    stderr through the command's log handler)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.lines = []
+
+    def emit(self, record):
+        self.lines.append(" ".join(record.getMessage().split()))
+
+
 def run(args) -> int:
     """Input errors (ParamsError, BagError, CalibrationError, ...) propagate to
     sclam_ros.cli.main, which turns each into one line and exit status 2."""
-    from sclam_ros.core.estimator import calibrate_keyframes
+    warnings = _Warnings()
+    log.addHandler(warnings)
+    try:
+        return _run(args, warnings.lines)
+    finally:
+        log.removeHandler(warnings)
+
+
+def _run(args, warnings) -> int:
+    from sclam_ros.core.estimator import CONVERGED_STEP_SIGMA, calibrate_keyframes
     from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.progress import ProgressBar
 
@@ -172,13 +209,16 @@ def run(args) -> int:
     )
     print(f"{result.scans_used} scans over {result.duration_s:.1f} s; "
           f"solver: {result.iterations} iterations, converged: {result.converged}")
+    if not result.converged:
+        log.warning("the solver stopped with the parameters still moving by more than %.2g σ "
+                    "per step: the estimate is not final", CONVERGED_STEP_SIGMA)
     print(format_table(result, truth))
-    if not all(result.observable.values()):
-        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks the "
-              "motion that excites them (turns in both directions for the wheel base and the "
-              "laser offset).")
+    _explain_unobserved(result.observable)
     if args.json:
-        atomic_write_text(args.json, json.dumps(result.as_json(), indent=2) + "\n")
+        out = result.as_json()
+        out["warnings"] = warnings
+        out["messages"] = recording.messages
+        atomic_write_text(args.json, json.dumps(out, indent=2) + "\n")
     if args.report:
         from sclam_ros.io.report import write_calibration_report
 

@@ -71,9 +71,22 @@ def one_line(exc: BaseException) -> str:
     return out
 
 
+class _LowerCaseLevel(logging.Formatter):
+    """`sclam calibrate: warning: ...`, in the form of the `sclam calibrate: error: ...` line."""
+
+    def format(self, record):
+        record = logging.makeLogRecord(record.__dict__)  # other handlers see the record as it was
+        record.levelname = record.levelname.lower()
+        return super().format(record)
+
+
 def main(argv=None) -> int:
-    logging.basicConfig(level=logging.INFO, format="[sclam] %(levelname)s: %(message)s")
     args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO)
+    for handler in logging.getLogger().handlers:
+        if type(handler) is logging.StreamHandler:  # basicConfig's (a test harness has its own)
+            handler.setFormatter(
+                _LowerCaseLevel(f"sclam {args.command}: %(levelname)s: %(message)s"))
     try:
         return args._module.run(args)
     except KeyboardInterrupt:

@@ -17,6 +17,7 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from sclam_ros.sim.effects import EFFECTS
     from sclam_ros.sim.robots import PRESETS
+    from sclam_ros.sim.trajectory import MOTIONS
 
     parser.add_argument("out", help="output folder (becomes the rosbag2; must not exist)")
     parser.add_argument("--robot", choices=sorted(PRESETS), default="powerbot",
@@ -48,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="probability of a point between the surfaces at a depth edge (default: %(default)s)")
     parser.add_argument("--scene", choices=("office", "outdoor"), default="office",
                         help="office: walls and furniture; outdoor: trees, poles, parked cars (default: %(default)s)")
+    parser.add_argument("--motion", choices=MOTIONS, default="route",
+                        help="route: a random drive that excites every parameter; straight, "
+                             "straight_then_turns, spin, still: fixed patterns that leave some "
+                             "undetermined (default: %(default)s)")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -84,6 +89,7 @@ def run(args) -> int:
             true_overrides=overrides, storage=args.storage, scan_rate=args.scan_rate,
             beams=args.beams, encoder_rate=args.encoder_rate, range_noise=args.range_noise,
             effects=effects, progress=progress, overwrite=args.overwrite, scene=args.scene,
+            motion=args.motion,
             laser=dict(fov=math.radians(args.fov), range_max=args.range_max,
                        range_noise_per_m=args.range_noise_per_m, dropout=args.dropout,
                        mixed_pixels=args.mixed_pixels),

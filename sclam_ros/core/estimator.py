@@ -10,20 +10,22 @@ import numpy as np
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core.inputs import Rejections
+from sclam_ros.core.observability import Observability
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core import factors
+from sclam_ros.core.wiring import wiring_problem
 from sclam_ros.core.solver import (
-    levenberg_marquardt,
     marginal_covariance,
+    remaining_step,
     sandwich_covariance,
     solve_with_variance_components,
 )
 
 MIN_KEYFRAMES = 10
 
-# A parameter whose posterior σ is more than this fraction of its prior σ was not
-# constrained by the data: the motion did not excite it.
-UNOBSERVED_SIGMA_RATIO = 0.1
+# Converged: a further Gauss-Newton step would move no calibration parameter by this
+# fraction of its σ, whatever the iteration count (long real recordings reach LM's cap
+# while a continued solve moves nothing by more than 0.07σ).
+CONVERGED_STEP_SIGMA = 0.1
 
 
 class CalibrationError(RuntimeError):
@@ -49,27 +51,17 @@ class CalibrationResult:
     inputs: object = field(repr=False, default=None)  # graph.GraphInputs
     problem: object = field(repr=False, default=None)
     rejections: Rejections = field(default_factory=Rejections)
+    observability: Observability = field(repr=False, default=None)  # what `observable` comes from
 
     def as_json(self) -> dict:
         out = {k: self.estimate[k] for k in CALIBRATION_KEYS}
         out["sigma"] = {k: self.sigma[k] for k in CALIBRATION_KEYS}
         out["scans_used"] = int(self.scans_used)
         out["duration_s"] = float(self.duration_s)
+        out["converged"] = bool(self.converged)
+        out["observable"] = {k: bool(self.observable[k]) for k in CALIBRATION_KEYS}
+        out["rejected"] = dict(sorted(self.rejections.counts.items()))
         return out
-
-
-PIN_SIGMA_RATIO = 1e-6  # a pinned parameter may move by this fraction of its prior σ
-
-
-def _pin(mask, nominal, prior_sigma):
-    """Priors holding the masked calibration parameters at nominal (the others: no pull)."""
-    weight = np.where(mask, (PIN_SIGMA_RATIO * prior_sigma) ** -2.0, 1e-12)
-    return [
-        factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(weight[:3]),
-                            angular=(False, False, False), name="pinned_calibration"),
-        factors.PriorFactor("laser", [0], [nominal[3:]], np.diag(weight[3:]),
-                            name="pinned_calibration"),
-    ]
 
 
 def _at_least(model, sandwich):
@@ -85,27 +77,6 @@ def _at_least(model, sandwich):
     ratio = np.sqrt(np.diag(sandwich)) / np.maximum(np.sqrt(np.diag(model)), 1e-300)
     scale = np.maximum(1.0, ratio)
     return model * np.outer(scale, scale)
-
-
-def _unknown_as_prior(cov, observable, prior_sigma):
-    """Parameters the data did not determine get their prior σ and no correlations."""
-    cov = cov.copy()
-    cov[~observable, :] = 0.0
-    cov[:, ~observable] = 0.0
-    cov[~observable, ~observable] = prior_sigma[~observable] ** 2
-    return cov
-
-
-def excited_parameters(problem, prior_sigma) -> np.ndarray:
-    """Which calibration parameters the recorded motion constrains, judged at the start.
-
-    Observability is a property of the motion, not of one noise realisation: the marginal
-    σ of each parameter under the stated noise model at the nominal calibration, compared
-    with its (weak) prior σ. Judged at a fitted optimum instead, an unexcited parameter
-    can wander to a boundary where the curvature looks informative.
-    """
-    cov = marginal_covariance(problem, problem.values, ["odometry", "laser"])
-    return np.sqrt(np.diag(cov)) < UNOBSERVED_SIGMA_RATIO * prior_sigma
 
 
 def residual_rms(problem, values, system=None) -> dict:
@@ -125,6 +96,10 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
             f"{MIN_KEYFRAMES}); check the topic names, joint names and that the clocks of "
             f"both sensors overlap. Rejections: {rejections or 'none'}"
         )
+    # Swapped or backwards encoders: every number the graph would give is wrong.
+    miswired = wiring_problem(keyframes, params)
+    if miswired:
+        raise CalibrationError(miswired)
     inputs = graph_mod.GraphInputs.from_keyframes(
         graph_mod.merge_keyframes(keyframes, params.keyframe_interval))
     if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
@@ -135,22 +110,24 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     prior_sigma = graph_mod.prior_sigmas(nominal)
     problem = graph_mod.build_problem(inputs, params, nominal)
-    observable = excited_parameters(problem, prior_sigma)
-    if not observable.all():
-        # A parameter the motion does not excite (standing still, straight lines only)
-        # would drift to fit noise, and with it the noise models that depend on it. It is
-        # held at nominal and reported with its prior σ: "unknown", not a number that
-        # looks measured.
-        problem.factors.extend(_pin(~observable, nominal, prior_sigma))
+    # Judged at the start (nominal calibration, poses settled on it): observability is a
+    # property of the motion, not of one noise realisation; at a fitted optimum an
+    # undetermined direction could wander to where the curvature looks informative.
+    observability = Observability.of_settled_problem(problem, prior_sigma)
+    # An undetermined direction (standing still, straight lines only, spinning in place)
+    # would drift to fit noise, and with it the noise models that depend on it: it is held
+    # at nominal. The parameters it moves are reported at nominal with their prior σ.
+    problem.factors.extend(observability.lock(nominal))
     result, scales = solve_with_variance_components(problem, progress=progress)
-    cov = marginal_covariance(problem, result.values, ["odometry", "laser"])
+    # The step a continued solve would still take, from the factorisation the covariance
+    # needs anyway: the iteration cap alone says nothing about whether the answer moved.
+    remaining, lu = remaining_step(problem, result.values, ["odometry", "laser"])
+    cov = marginal_covariance(problem, result.values, ["odometry", "laser"], lu=lu)
     values = result.values
-    model_cov = _unknown_as_prior(cov, observable, prior_sigma)
-    cov = _unknown_as_prior(
-        _at_least(cov, sandwich_covariance(problem, values, ["odometry", "laser"])),
-        observable, prior_sigma,
-    )
-    estimate = graph_mod.calibration_of(values)
+    model_cov = observability.reported_covariance(cov)
+    cov = observability.reported_covariance(
+        _at_least(cov, sandwich_covariance(problem, values, ["odometry", "laser"])))
+    estimate = observability.reported(graph_mod.calibration_of(values), nominal)
     sigma = np.sqrt(np.diag(cov))
     if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(sigma)):
         raise CalibrationError("the solver produced a non-finite estimate; the data is degenerate")
@@ -160,16 +137,18 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         covariance=cov,
         model_covariance=model_cov,
         nominal=graph_mod.as_dict(nominal),
-        observable={k: bool(o) for k, o in zip(CALIBRATION_KEYS, observable)},
+        observable=observability.as_dict(),
         scans_used=len(keyframes),
         duration_s=float(inputs.stamps[-1] - inputs.stamps[0]),
         residual_rms=residual_rms(problem, values),
         variance_scales={k: v for k, v in scales.items()},
         iterations=result.iterations,
-        converged=result.converged,
+        converged=bool(result.converged
+                       or np.all(np.abs(remaining) < CONVERGED_STEP_SIGMA * sigma)),
         stamps=inputs.stamps,
         poses=values["poses"],
         inputs=inputs,
         problem=problem,
         rejections=rejections or Rejections(),
+        observability=observability,
     )

@@ -20,8 +20,9 @@ from sclam_ros.core.solver import CauchyKernel, Problem, Values
 # Weak priors on the calibration at its nominal value. They carry no information a real
 # run would notice (σ far beyond any plausible mounting error), but they keep the system
 # well-posed when the motion cannot excite a parameter (driving straight only: no base,
-# no laser offset), so such a parameter comes back at nominal with σ ≈ its prior σ, which
-# the report then flags as "not observable", instead of a singular matrix.
+# no laser offset), and they are the unit the data's information is measured in: a
+# direction with less than 100× the prior's information is undetermined, locked at
+# nominal and its parameters flagged "not observable" (core/observability.py).
 PRIOR_SIGMA_RELATIVE_ODOMETRY = 0.25  # × nominal radius / base
 PRIOR_SIGMA_LASER_XY = 2.0  # m
 PRIOR_SIGMA_LASER_YAW = np.pi / 2  # rad

@@ -76,8 +76,11 @@ class CalibrationPriorFactor(factors.Factor):
     name = "marginal_prior"
     measurement = False
 
-    def __init__(self, gaussian: Gaussian):
-        self.mean = gaussian.mean()
+    def __init__(self, gaussian: Gaussian, mean=None):
+        """`mean`: a point with information η = Λ mean, where Λ is singular and one is known
+        (a lock at given values): the minimum-norm mean can lie far off along the free
+        directions, and the residual's large components then cancel in Λ^½ r."""
+        self.mean = gaussian.mean() if mean is None else np.asarray(mean, float)
         # Λ may be singular (the radii after a change): a square root from its
         # eigen-decomposition weighs exactly the directions that have information.
         values, vectors = np.linalg.eigh(0.5 * (gaussian.information + gaussian.information.T))

@@ -12,8 +12,10 @@ A parameters file is a standard ROS 2 one::
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
+import glob
 import math
 import os
 import tempfile
@@ -73,6 +75,12 @@ def _non_negative(name, value):
     return None
 
 
+def _sign(name, value):
+    if value not in (1.0, -1.0):
+        return f"{name} must be 1 or -1, got {value!r}"
+    return None
+
+
 def _non_empty(name, value):
     if not value:
         return f"{name} must not be empty"
@@ -105,6 +113,12 @@ class SclamParams:
         _non_negative,
         "ticks",
     )
+    # A recording cannot be re-recorded with the driver fixed: these correct it instead
+    # (sclam calibrate names the one to set when the laser sees the wheel turn the other way).
+    left_encoder_sign: float = _param(
+        1.0, "1, or -1 if the left wheel's position falls when the wheel rolls forward", _sign)
+    right_encoder_sign: float = _param(
+        1.0, "1, or -1 if the right wheel's position falls when the wheel rolls forward", _sign)
     # --- nominal calibration (starting values) -------------------------------------
     wheel_radius_left: float = _param(0.1, "left wheel radius", _within(MAX_WHEEL_RADIUS, True), "m")
     wheel_radius_right: float = _param(0.1, "right wheel radius", _within(MAX_WHEEL_RADIUS, True), "m")
@@ -190,7 +204,7 @@ class SclamParams:
         if unknown:
             # Refused, not ignored: a misspelt nominal value would silently stay at its default.
             raise ParamsError(
-                f"{source}: unknown parameter(s) {', '.join(map(_with_suggestion, unknown))}; "
+                f"{source}: unknown parameter(s) {', '.join(map(with_suggestion, unknown))}; "
                 f"known: {', '.join(sorted(known))}"
             )
         values = {}
@@ -214,24 +228,7 @@ class SclamParams:
     @classmethod
     def from_yaml(cls, path, node_name: str = NODE_NAME) -> "SclamParams":
         path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except FileNotFoundError:
-            raise ParamsError(f"parameters file not found: {path}") from None
-        except IsADirectoryError:
-            raise ParamsError(f"{path} is a folder, not a parameters file") from None
-        except OSError as exc:
-            raise ParamsError(f"cannot read parameters file {path}: {exc.strerror or exc}") from None
-        except UnicodeDecodeError:
-            raise ParamsError(f"{path}: not a text file, so not a YAML parameters file") from None
-        except yaml.YAMLError as exc:
-            # PyYAML's message spans lines (problem, then a context excerpt): keep its gist.
-            mark = getattr(exc, "problem_mark", None)
-            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-            raise ParamsError(f"{path}: not valid YAML{where}: {problem}") from None
-        if doc is None:
-            raise ParamsError(f"{path}: the parameters file is empty")
+        doc = read_yaml_document(path)
         return cls.from_dict(ros_parameters_section(doc, node_name, str(path)), str(path))
 
     def to_yaml_dict(self, node_name: str = NODE_NAME) -> dict:
@@ -242,7 +239,32 @@ class SclamParams:
         atomic_write_text(path, text)
 
 
-def _with_suggestion(name: str) -> str:
+def read_yaml_document(path):
+    """The YAML document in the parameters file ``path``; ParamsError (one line) if it is
+    missing, a folder, unreadable, not text, not YAML or empty."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ParamsError(f"parameters file not found: {path}") from None
+    except IsADirectoryError:
+        raise ParamsError(f"{path} is a folder, not a parameters file") from None
+    except OSError as exc:
+        raise ParamsError(f"cannot read parameters file {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        raise ParamsError(f"{path}: not a text file, so not a YAML parameters file") from None
+    except yaml.YAMLError as exc:
+        # PyYAML's message spans lines (problem, then a context excerpt): keep its gist.
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ParamsError(f"{path}: not valid YAML{where}: {problem}") from None
+    if doc is None:
+        raise ParamsError(f"{path}: the parameters file is empty")
+    return doc
+
+
+def with_suggestion(name: str) -> str:
     """``name`` with the closest known parameter name, for typos: "wheel_bas (wheel_base?)"."""
     close = difflib.get_close_matches(name, [f.name for f in fields(SclamParams)], n=1)
     return f"{name} ({close[0]}?)" if close else name
@@ -266,11 +288,36 @@ def ros_parameters_section(doc, node_name: str, source: str) -> dict:
     return merged
 
 
+def _remove_stale_temps(path: Path) -> None:
+    """Delete temporary files of earlier writes of ``path`` whose writer process is gone.
+
+    A process killed between creating its temporary file and renaming it (SIGKILL, or
+    SIGTERM without a handler: no ``finally`` runs) leaves the file behind. Each temporary
+    file names its writer's pid, so a temporary file of a live writer (another process saving
+    the same file right now) is left alone."""
+    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        pid = tmp.name[len(path.name) + 2:].split(".", 1)[0]
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            os.kill(int(pid), 0)
+            continue  # its writer is alive
+        except ProcessLookupError:
+            pass
+        except OSError:  # e.g. alive under another user: not ours to judge
+            continue
+        with contextlib.suppress(FileNotFoundError):  # a concurrent save removed it first
+            tmp.unlink()
+
+
 def atomic_write_text(path, text: str) -> None:
-    """Write ``text`` to ``path`` so that readers see the old file or the new one, never half."""
+    """Write ``text`` to ``path`` so that readers see the old file or the new one, never half,
+    and leave no temporary file behind (nor one an earlier, killed save left)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    _remove_stale_temps(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.",
+                               suffix=".tmp")
     try:
         # mkstemp creates 0600; a calibration file is for everyone to read (umask decides).
         umask = os.umask(0)

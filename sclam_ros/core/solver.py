@@ -430,6 +430,16 @@ def factorize_information(problem: Problem, values: Values, system: Optional[Sys
     return system, hessian, LinearSolver(hessian, problem.banded_size)
 
 
+def remaining_step(problem: Problem, values: Values, blocks):
+    """The Gauss-Newton step Δ = −H⁻¹g still ahead at `values`, for the named blocks' free
+    variables, and the factorisation of H (for marginal_covariance's `lu`). How far a
+    continued solve would move the parameters, whatever stopped the iterations."""
+    system, _, lu = factorize_information(problem, values)
+    _, gradient = _normal_equations(system)
+    cols = np.concatenate([problem.layout.columns(name) for name in blocks])
+    return -lu.solve(gradient)[cols], lu
+
+
 def marginal_covariance(problem: Problem, values: Values, blocks, lu=None):
     """Joint marginal covariance of the named blocks' free variables, (p, p).
 

@@ -24,7 +24,7 @@ from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor, extend_problem
-from sclam_ros.core.estimator import _pin, calibrate_keyframes, residual_rms
+from sclam_ros.core.estimator import calibrate_keyframes, residual_rms
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import levenberg_marquardt, marginal_covariance, solve_with_variance_components
 
@@ -202,10 +202,10 @@ def _subset(inputs, keep_pose_edges):
                                  odo_parts=None if inputs.odo_parts is None else inputs.odo_parts[o])
 
 
-def _fit_base(inputs, params, nominal, observable, prior_sigma, poses=None) -> Fit:
+def _fit_base(inputs, params, nominal, observability, poses=None) -> Fit:
+    """The base model on `inputs`, with the full run's undetermined directions locked."""
     problem = graph_mod.build_problem(inputs, params, nominal, poses=poses)
-    if not observable.all():
-        problem.factors.extend(_pin(~observable, nominal, prior_sigma))
+    problem.factors.extend(observability.lock(nominal))
     result, scales = solve_with_variance_components(problem)
     return Fit(problem, result.values, scales, result.final_cost)
 
@@ -348,8 +348,7 @@ class _Models:
         return self.heldout[key]
 
 
-def _time_block_folds(inputs, edges, base, params, nominal, observable, folds) -> list:
-    prior_sigma = graph_mod.prior_sigmas(nominal)
+def _time_block_folds(inputs, edges, base, params, nominal, observability, folds) -> list:
     out = []
     for block in np.array_split(np.arange(inputs.size), folds):
         held = np.zeros(inputs.size, bool)
@@ -357,7 +356,7 @@ def _time_block_folds(inputs, edges, base, params, nominal, observable, folds) -
         test = held[edges.pose_j] & held[edges.pose_i]
         if not test.any():
             continue
-        train = _fit_base(_subset(inputs, ~held), params, nominal, observable, prior_sigma,
+        train = _fit_base(_subset(inputs, ~held), params, nominal, observability,
                           poses=base.values["poses"])
         out.append(_Fold(_edges_where(edges, test), _edges_where(edges, ~held[edges.pose_j]
                                                                   & ~held[edges.pose_i]), train))
@@ -488,7 +487,6 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
     problem = base_result.problem
     base = Fit(problem, problem.values, dict(problem.scales), problem.cost(problem.values))
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
-    observable = np.array([base_result.observable[k] for k in CALIBRATION_KEYS])
     data = EffectData.from_keyframes(keyframes, inputs.stamps, positions=base.values["poses"][:, :2])
     wheel_angles = np.array([kf.wheel_angles for kf in merged], float).reshape(-1, 2)
     edges = paired_edges(inputs)
@@ -504,7 +502,8 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
 
     say(f"{folds}-fold time-block cross-validation")
     models = _Models(data, inputs, edges, odo_cov, base,
-                     _time_block_folds(inputs, edges, base, params, nominal, observable, folds))
+                     _time_block_folds(inputs, edges, base, params, nominal,
+                                       base_result.observability, folds))
     n_edges = len(inputs.odo_from) + len(inputs.laser_from)
     selected, evidence = _stepwise_selection(models, names, n_edges, say)
     base_error = float(np.mean(models.heldout_nll([])))

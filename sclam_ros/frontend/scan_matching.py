@@ -232,6 +232,8 @@ class ScanMatcher:
             if c.fixed_threshold is not None
             else kiss._AdaptiveThreshold(c.initial_threshold, c.min_motion_threshold, c.max_range)
         )
+        # Scans registered from the constant-velocity prediction after the odometry guess failed.
+        self.odometry_guess_failures = 0
         self.reset()
 
     def reset(self) -> None:
@@ -289,30 +291,26 @@ class ScanMatcher:
         else:
             prediction = se2.compose(self._pose, self._velocity * (scan.stamp - self._stamp))
 
-        sigma = c.fixed_threshold if self._threshold is None else self._threshold._compute_threshold()
-        pose_m = se2.to_matrix4(prediction)
-        for level_source, local_map in zip(sources, self._maps):
-            pose_m = self._registration._align_points_to_map(
-                kiss._Vector3dVector(level_source), local_map, pose_m, 3.0 * sigma, sigma
-            )
-        new_pose = se2.from_matrix(pose_m)
-        correction = se2.between(new_pose, prediction)
+        new_pose, used, failure, fitness, rmse = self._register(sources, prediction)
+        if failure and have_guess:
+            # The odometry can be what is wrong (swapped or backwards encoders, a nominal
+            # calibration far off): try again from the constant-velocity prediction, as
+            # KISS-ICP does without odometry, so that the laser still measures the motion
+            # the wheels contradict (core/wiring.py needs exactly those motions).
+            retry = self._register(sources, se2.compose(self._pose, self._velocity * dt))
+            if retry[2] is None:
+                new_pose, used, failure, fitness, rmse = retry
+                self.odometry_guess_failures += 1
+        if failure:
+            # registration_diverged: dropped, and the map restarts at this scan, placed where
+            # odometry says it is, so the next scan is registered against clean geometry.
+            # registration_poor_overlap: converged somewhere the previous scan does not
+            # confirm (the robot was carried, the view changed completely).
+            self.rejections.add(failure)
+            self._start_map(index, scan.stamp, frames_map, source, prediction)
+            return None
+        correction = se2.between(new_pose, used)
         z = se2.between(new_pose, self._pose)
-
-        if not np.all(np.isfinite(new_pose)) or not self._within_gate(correction, se2.between(prediction, self._pose)):
-            # A divergence: drop it and restart the map at this scan, placed where odometry
-            # says it is, so the next scan is registered against clean geometry.
-            self.rejections.add("registration_diverged")
-            self._start_map(index, scan.stamp, frames_map, source, prediction)
-            return None
-
-        fitness, rmse = self._overlap(source, new_pose, c.inlier_distance)
-        if fitness < c.min_fitness:
-            # Converged somewhere the previous scan does not confirm (the robot was carried,
-            # the view changed completely): not a measurement of the motion.
-            self.rejections.add("registration_poor_overlap")
-            self._start_map(index, scan.stamp, frames_map, source, prediction)
-            return None
         if self._threshold is not None:
             self._threshold._update_model_deviation(se2.to_matrix4(correction))
         self._velocity = z / dt if dt > 0 else np.zeros(3)
@@ -339,6 +337,25 @@ class ScanMatcher:
         return match
 
     # -- internals --------------------------------------------------------------------------
+    def _register(self, sources, prediction):
+        """ICP of the scan from `prediction` (map frame), coarse to fine: (pose, prediction,
+        failure reason or None, fitness, rmse)."""
+        c = self.config
+        sigma = c.fixed_threshold if self._threshold is None else self._threshold._compute_threshold()
+        pose_m = se2.to_matrix4(prediction)
+        for level_source, local_map in zip(sources, self._maps):
+            pose_m = self._registration._align_points_to_map(
+                kiss._Vector3dVector(level_source), local_map, pose_m, 3.0 * sigma, sigma
+            )
+        new_pose = se2.from_matrix(pose_m)
+        correction = se2.between(new_pose, prediction)
+        if not np.all(np.isfinite(new_pose)) or not self._within_gate(correction, se2.between(prediction, self._pose)):
+            return new_pose, prediction, "registration_diverged", 0.0, math.inf
+        fitness, rmse = self._overlap(sources[-1], new_pose, c.inlier_distance)
+        if fitness < c.min_fitness:
+            return new_pose, prediction, "registration_poor_overlap", fitness, rmse
+        return new_pose, prediction, None, fitness, rmse
+
     def _start_map(self, index, stamp, frames_map, source, pose, keep_map=False):
         pose_m = se2.to_matrix4(pose)
         self._map_scans = self._map_scans + 1 if keep_map else 1

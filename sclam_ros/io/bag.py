@@ -110,16 +110,19 @@ def _connections_for(reader: AnyReader, topics: Iterable[str], path) -> list:
 
 class ReadCounts:
     """What :func:`iter_messages` met, per topic: messages ``read`` (yielded) and ``corrupt``
-    (skipped: they did not deserialize), and how often the storage itself was unreadable."""
+    (skipped: they did not deserialize), and how often the storage itself was unreadable.
+    ``used``: filled by the consumer (io/recording.py), messages it passed on to the
+    calibration (read minus those its checks rejected)."""
 
     def __init__(self):
         self.read: Counter = Counter()
+        self.used: Counter = Counter()
         self.corrupt: Counter = Counter()
         self.unreadable = 0  # storage errors stepped over (their messages are lost uncounted)
 
     def as_dict(self) -> dict:
-        """{topic: {"read": n, "corrupt": m}} for every topic seen."""
-        return {t: {"read": self.read[t], "corrupt": self.corrupt[t]}
+        """{topic: {"read": n, "used": u, "corrupt": m}} for every topic seen."""
+        return {t: {"read": self.read[t], "used": self.used[t], "corrupt": self.corrupt[t]}
                 for t in sorted(set(self.read) | set(self.corrupt))}
 
 

@@ -40,7 +40,8 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
 
     Positions stay in the encoder's raw unit (ticks, or radians when
     ``params.ticks_per_revolution`` is 0): unwrapping a counter needs the raw value, so the
-    conversion to radians happens in :class:`sclam_ros.frontend.sync.EncoderStream`.
+    conversion to radians happens in :class:`sclam_ros.frontend.sync.EncoderStream`. They are
+    multiplied by ``params.left_encoder_sign`` / ``right_encoder_sign`` (a backwards encoder).
 
     Raises MessageRejected with reason
       ``joint_state_missing_joint``   a wheel joint is not in ``name`` (the text lists the names present),
@@ -67,7 +68,8 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
         raise MessageRejected(
             "joint_state_non_finite", f"wheel positions left={left}, right={right}"
         )
-    return stamp_to_sec(msg.header.stamp), left, right
+    return (stamp_to_sec(msg.header.stamp), params.left_encoder_sign * left,
+            params.right_encoder_sign * right)
 
 
 def laser_scan_to_scan(msg) -> Scan:

@@ -2,10 +2,18 @@
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from sclam_ros.io import bag
-from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan
+from sclam_ros.io.messages import (
+    MessageRejected,
+    joint_state_to_raw,
+    laser_scan_to_scan,
+    stamp_to_sec,
+)
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.core.inputs import Rejections
 
@@ -20,7 +28,7 @@ class Recording:
 
     keyframes: list
     rejections: Rejections
-    messages: dict = field(default_factory=dict)  # topic -> {read, corrupt} (bag.ReadCounts)
+    messages: dict = field(default_factory=dict)  # topic -> {read, used, corrupt} (bag.ReadCounts)
     frontend: Frontend = None
 
 
@@ -39,14 +47,58 @@ def check_topic_types(info: dict, params) -> None:
             raise bag.BagError(f"{key} {topic} carries {msgtype}, not {wanted}")
 
 
+# Header stamps whose offsets from their record stamps differ between the two input topics
+# by more than this come from two clocks (a sensor computer that is not synchronised, a
+# driver stamping with its own time), not from transport latency (ms) or a scan's duration
+# (≤ 0.1 s). Paired across two clocks, each odometry edge covers another stretch of time
+# than its scan match: wheel base +22 % at 3 s.
+CLOCK_MISMATCH_S = 0.5
+CLOCK_SAMPLE = 20  # messages per topic the offsets are judged from
+CLOCK_HOLD_MAX = 5000  # messages held back at most while waiting for both topics
+
+
+class HeaderClocks:
+    """Puts both input topics' header stamps on one clock. Each topic's offset (header −
+    record stamp, median of its first messages) is measured; a topic whose offset differs
+    from the other's by more than CLOCK_MISMATCH_S is moved by the difference onto the clock
+    of the other, the one nearer to record time. Header stamps keep their precision within
+    a topic (record stamps carry the recorder's scheduling jitter)."""
+
+    def __init__(self, topics):
+        self.samples = {topic: [] for topic in topics}
+        self.shift = None  # {topic: s subtracted from its header stamps}, once decided
+
+    def add(self, topic, header_s, record_s) -> bool:
+        """Sample one message; True once every topic has enough samples."""
+        if len(self.samples[topic]) < CLOCK_SAMPLE:
+            self.samples[topic].append(header_s - record_s)
+        return all(len(s) >= CLOCK_SAMPLE for s in self.samples.values())
+
+    def decide(self) -> None:
+        self.shift = dict.fromkeys(self.samples, 0.0)
+        offsets = {t: float(np.median(s)) for t, s in self.samples.items() if s}
+        if len(offsets) < 2:
+            return
+        (near, o_near), (far, o_far) = sorted(offsets.items(), key=lambda item: abs(item[1]))
+        if abs(o_far - o_near) > CLOCK_MISMATCH_S:
+            self.shift[far] = o_far - o_near
+            log.warning("%s header stamps are %+.3f s off their record stamps (%s: %+.3f s): "
+                        "its stamps are moved by %+.3f s onto the clock of %s", far, o_far,
+                        near, o_near, o_near - o_far, near)
+
+
+_REJECTED = object()
+
+
 def iter_outputs(path, params, sink, progress=None, start=None, stop=None, counts=None):
     """Feed a bag's messages in record order to `sink` (a Frontend or an OnlineCalibrator:
     anything with add_encoder, add_scan and rejections), through the same conversions the
     node uses; yield what each call returns. `start`/`stop`: record-time window (s).
-    `counts`: a bag.ReadCounts to fill (messages read and corrupt per topic).
+    `counts`: a bag.ReadCounts to fill (messages read, used and corrupt per topic).
 
     A message the conversions refuse is counted in the sink's rejections under its reason
-    and warned about the first time that reason occurs; the others are used."""
+    and warned about the first time that reason occurs; the others are used. Header stamps
+    are put on one clock (HeaderClocks): the first messages are held back until it is known."""
     topics = [params.joint_states_topic, params.scan_topic]
     info = bag.topic_info(path)
     check_topic_types(info, params)
@@ -55,21 +107,52 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
         first, last = bag.time_span(path)
         lo, hi = max(first, start or first), min(last, stop or last)
         total = int(total * max(0.0, hi - lo) / max(last - first, 1e-9))
-    messages = bag.iter_messages(path, topics, start, stop, counts)
-    for seen, (topic, _, msg) in enumerate(messages, 1):
-        if progress is not None and seen % 500 == 0:
-            progress(seen, total)
+    counts = counts if counts is not None else bag.ReadCounts()
+    clocks = HeaderClocks(topics)
+    frames = Counter()  # scans per header.frame_id
+
+    def feed(topic, msg):
+        shift = clocks.shift[topic]
         try:
             if topic == params.joint_states_topic:
-                output = sink.add_encoder(*joint_state_to_raw(msg, params))
+                stamp, left, right = joint_state_to_raw(msg, params)
+                output = sink.add_encoder(stamp - shift, left, right)
             else:
-                output = sink.add_scan(laser_scan_to_scan(msg))
+                scan = laser_scan_to_scan(msg)
+                scan.stamp -= shift
+                frames[scan.frame_id] += 1
+                output = sink.add_scan(scan)
         except MessageRejected as exc:
             if exc.reason not in sink.rejections.counts:
                 log.warning("rejecting %s messages (counted): %s", topic, exc)
             sink.rejections.add(exc.reason)
+            return _REJECTED
+        counts.used[topic] += 1
+        return output
+
+    def fed(messages):
+        outputs = (feed(topic, msg) for topic, msg in messages)
+        return (output for output in outputs if output is not _REJECTED)
+
+    held = []  # messages read before the clocks are decided
+    for seen, (topic, t, msg) in enumerate(bag.iter_messages(path, topics, start, stop, counts), 1):
+        if progress is not None and seen % 500 == 0:
+            progress(seen, total)
+        if clocks.shift is not None:
+            yield from fed([(topic, msg)])
             continue
-        yield output
+        held.append((topic, msg))
+        if clocks.add(topic, stamp_to_sec(msg.header.stamp), t) or len(held) >= CLOCK_HOLD_MAX:
+            clocks.decide()
+            yield from fed(held)
+            held = []
+    if clocks.shift is None:  # fewer messages than the sample
+        clocks.decide()
+        yield from fed(held)
+    if len(frames) > 1:
+        log.warning("%s: header.frame_id changes within the recording (%s); the calibration "
+                    "takes every scan as coming from one laser", params.scan_topic,
+                    ", ".join(f"{frame}: {n} scans" for frame, n in frames.most_common()))
     if progress is not None:
         progress(total, total)
 
@@ -91,10 +174,6 @@ def read_recording(path, params, progress=None, start=None, stop=None) -> Record
 
 def read_ground_truth(path, topic=GROUND_TRUTH_TOPIC):
     """(stamps, poses) of a ground-truth nav_msgs/Odometry topic, or None if the bag has none."""
-    import numpy as np
-
-    from sclam_ros.io.messages import stamp_to_sec
-
     if topic not in bag.topic_info(path):
         return None
     stamps, poses = [], []

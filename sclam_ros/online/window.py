@@ -40,7 +40,7 @@ from sclam_ros.core import graph as graph_mod, kinematics, se2
 from sclam_ros.frontend.pipeline import Frontend, Keyframe
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian, gaussian_of_prior, radius_change_statistic
-from sclam_ros.core.observability import Observability
+from sclam_ros.core.observability import Observability, settle_poses
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import factorize_information, levenberg_marquardt, marginal_covariance
 
@@ -364,8 +364,8 @@ class OnlineCalibrator:
         """What the leaving keyframes knew about the calibration: a Schur complement.
 
         H = JᵀJ and g = Jᵀr of the leaving edges alone, linearised at x₀ = (the
-        current calibration, poses chained from the scan matches, which are close to their
-        optimum), over (poses, k, l); the poses are integrated out:
+        current calibration, poses chained from the scan matches and settled on the chunk's
+        edges with the calibration held: observability.settle_poses), over (poses, k, l); the poses are integrated out:
             Λ = H_cc − H_cp H_pp⁺ H_pc,   g' = g_c − H_cp H_pp⁺ g_p,
         a Gaussian with information Λ and information vector η = Λ c₀ − g' (its mean is
         the chunk's own Gauss-Newton optimum for c, not the current estimate: without g'
@@ -376,6 +376,9 @@ class OnlineCalibrator:
         if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
             return None
         problem.factors = [f for f in problem.factors if f.measurement]
+        # At chained scan matches a chunk of standing still "informs" the laser yaw through
+        # the matches' jitter, and that would add up in the permanent prior for good.
+        problem.values = settle_poses(problem)
         system = problem.linear_system(problem.values)
         jac = system.dense_jacobian()
         hessian = jac.T @ jac

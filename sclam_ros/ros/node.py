@@ -13,27 +13,38 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
   ``~/odom``             nav_msgs/Odometry ``odom_frame`` → ``base_frame``, integrated at the
                          encoder rate with the current calibration; the pose covariance holds
                          the wheel noise accumulated along the path plus the calibration's own
-                         uncertainty propagated through the whole path.
+                         uncertainty propagated through the whole path. A parameter the
+                         data has not observed is integrated at its nominal value.
   ``~/laser_pose``       geometry_msgs/PoseWithCovarianceStamped, the laser on ``base_frame``;
                          covariance slots x, y, yaw (z, roll, pitch are fixed by the planar model);
                          stamped with the time of the newest scan the estimate includes.
-  ``~/wheel_parameters`` std_msgs/Float64MultiArray, a 2 × 3 row-major matrix::
+                         A coordinate the data has not observed is the nominal one with its
+                         prior variance (x, y: 4 m², yaw: (π/2)² rad²): that is its flag.
+  ``~/wheel_parameters`` std_msgs/Float64MultiArray, a 3 × 3 row-major matrix::
 
                              [r_l,   r_r,   b,            # row "value"  (m)
-                              σ_r_l, σ_r_r, σ_b]          # row "sigma"  (m)
+                              σ_r_l, σ_r_r, σ_b,          # row "sigma"  (m)
+                              o_r_l, o_r_r, o_b]          # row "observable" (1 or 0)
 
-                         ``layout.dim`` names the rows ("value,sigma") and the columns
-                         ("wheel_radius_left,wheel_radius_right,wheel_base").
+                         ``layout.dim`` names the rows ("value,sigma,observable") and the
+                         columns ("wheel_radius_left,wheel_radius_right,wheel_base"). A
+                         parameter the data has not observed (observable 0) is at its
+                         nominal value with its prior σ.
   ``/diagnostics``       diagnostic_msgs/DiagnosticArray at 1 Hz (wall clock): window fill
                          (radii window, and its part kept as poses), radius changes detected
                          and the last change χ² (online/window.py),
-                         observability of each parameter (σ < ½ prior σ), rejected input by
-                         reason, last solve converged (WARN after 3 unconverged in a row).
+                         observability of each parameter (core/observability.py: an
+                         unobserved one is at nominal, ``<name>_observable`` false), rejected
+                         input by reason, last solve converged (WARN after 3 unconverged in a
+                         row). A value not known yet (no estimate, no change test) is absent: never "nan".
   ``~/laser_pose`` and ``~/wheel_parameters`` are transient-local: a late subscriber gets the last one.
 Services (std_srvs/Trigger)
   ``~/reset_window``       forget the window's keyframes (radii restart from their current value)
   ``~/reset_calibration``  back to the nominal calibration, all information dropped
-  ``~/save_calibration``   write a parameters YAML with the current estimate to ``calibration_file``
+  ``~/save_calibration``   write a parameters YAML with the current estimate to ``calibration_file``;
+                           a parameter the data has not observed keeps its nominal (the
+                           parameters file's, e.g. previously saved) value, named in the file
+                           and in the response
 Parameters
   every field of SclamParams (same names, defaults, units in the descriptions), plus
   ``calibration_file`` (default ``sclam_calibration.yaml``, relative to the working directory).
@@ -42,6 +53,7 @@ Parameters
 """
 from __future__ import annotations
 
+import argparse
 import gc
 import math
 import sys
@@ -57,6 +69,8 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.time import Time
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.utilities import remove_ros_args
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, LaserScan
@@ -70,6 +84,8 @@ from sclam_ros.core.params import (
     ParamsError,
     SclamParams,
     check_parameter_value,
+    read_yaml_document,
+    with_suggestion,
 )
 from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan
 from sclam_ros.online.odometry import OdometryIntegrator
@@ -119,6 +135,7 @@ class SclamNode(Node):
     def __init__(self, node_name: str = NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
         self._declare_parameters()
+        self._warn_unknown_parameters()
         self.params = self._read_params()
         self.calibration_file = self.get_parameter("calibration_file").value
         self.rejections = Rejections()  # message conversion; the calibrator counts its own
@@ -177,6 +194,15 @@ class SclamNode(Node):
             ParameterDescriptor(description="where ~/save_calibration writes the parameters "
                                             "YAML with the current estimate"),
         )
+
+    def _warn_unknown_parameters(self):
+        # rclpy keeps a parameters file's values for this node until they are declared and
+        # ignores the rest: a misspelt nominal value would silently stay at its default.
+        # (_parameter_overrides: rclpy has no public accessor for them.)
+        unknown = sorted(n for n in self._parameter_overrides if not self.has_parameter(n))
+        if unknown:
+            self.get_logger().warn(
+                f"unknown parameter(s) ignored: {', '.join(map(with_suggestion, unknown))}")
 
     def _read_params(self) -> SclamParams:
         raw = {f.name: self.get_parameter(f.name).value for f in fields(SclamParams)}
@@ -287,10 +313,12 @@ class SclamNode(Node):
 
         wheels = Float64MultiArray()
         wheels.layout.dim = [
-            MultiArrayDimension(label=",".join(WHEEL_PARAMETER_ROWS), size=2, stride=6),
-            MultiArrayDimension(label=",".join(WHEEL_PARAMETER_COLUMNS), size=3, stride=3),
+            MultiArrayDimension(label=",".join(WHEEL_PARAMETER_ROWS), size=len(WHEEL_PARAMETER_ROWS),
+                                stride=len(WHEEL_PARAMETER_ROWS) * len(WHEEL_PARAMETER_COLUMNS)),
+            MultiArrayDimension(label=",".join(WHEEL_PARAMETER_COLUMNS),
+                                size=len(WHEEL_PARAMETER_COLUMNS), stride=len(WHEEL_PARAMETER_COLUMNS)),
         ]
-        wheels.data = wheel_parameters_data(estimate.values, estimate.sigma)
+        wheels.data = wheel_parameters_data(estimate)
         self.wheel_pub.publish(wheels)
 
     def diagnostic_status(self) -> DiagnosticStatus:
@@ -328,34 +356,76 @@ class SclamNode(Node):
         self.get_logger().info("calibration reset to nominal")
         return response
 
-    def current_params(self) -> SclamParams:
-        """The parameters with the current calibration in place of the nominal one."""
-        values = dict(zip(CALIBRATION_KEYS, map(float, self.calibrator.calibration)))
+    def current_params(self, status=None) -> SclamParams:
+        """The parameters with the current calibration in place of the nominal one (where
+        the data has not observed a parameter, the calibrator reports the nominal value)."""
+        status = self.calibrator.status if status is None else status
+        values = dict(zip(CALIBRATION_KEYS, map(float, status.calibration)))
         return self.params.with_calibration(values)
 
     def _save_calibration(self, request, response):
+        status = self.calibrator.status  # one reference: values and flags of one moment
+        unobserved = [k for k in CALIBRATION_KEYS if not status.observable[k]]
+        kept = ""
+        if status.estimate is not None and unobserved:
+            kept = "; not observed by the data, kept at their nominal values: " + ", ".join(unobserved)
         try:
             header = "# written by sclam_node ~/save_calibration\n"
-            if self.calibrator.estimate is None:
+            if status.estimate is None:
                 header += "# no estimate yet: these are the nominal values\n"
-            self.current_params().write_yaml(self.calibration_file, self.get_name(), header)
+            elif unobserved:
+                header += f"# {kept[2:]}\n"
+            self.current_params(status).write_yaml(self.calibration_file, self.get_name(), header)
         except (OSError, ParamsError) as exc:
             response.success, response.message = False, f"cannot write {self.calibration_file}: {exc}"
             return response
-        response.success, response.message = True, f"calibration written to {self.calibration_file}"
+        response.success, response.message = True, f"calibration written to {self.calibration_file}{kept}"
         self.get_logger().info(response.message)
         return response
 
 
+def _argument_parser() -> argparse.ArgumentParser:
+    """The node's own command line: only --help (everything else is a ROS argument)."""
+    listed = []
+    for f in fields(SclamParams):
+        default = f"{f.default!r} {f.metadata.get('unit', '')}".strip()
+        listed.append(f"  {f.name} = {default}: {f.metadata.get('doc', '')}")
+    return argparse.ArgumentParser(
+        prog="sclam_node", description=__doc__,
+        usage="sclam_node [-h] [--ros-args --params-file PARAMS.yaml [-p NAME:=VALUE ...]]",
+        epilog="parameters (defaults):\n" + "\n".join(listed),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+
+
+def _params_files(argv) -> list:
+    return [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == "--params-file"]
+
+
+def _refuse(exc) -> int:
+    """One line on stderr and exit status 2, as `sclam` does for input it cannot use."""
+    print(f"sclam_node: error: {' '.join(str(exc).split())}", file=sys.stderr)
+    return 2
+
+
 def main(args=None) -> int:
-    rclpy.init(args=args)
+    argv = sys.argv if args is None else list(args)
+    try:
+        # rcl reads the parameters files whenever it parses the arguments, and on bad YAML
+        # fails with an RCLError naming its C source lines: checked here first.
+        for path in _params_files(argv):
+            read_yaml_document(path)
+        # Before rclpy.init: --help starts nothing.
+        _argument_parser().parse_args(remove_ros_args(argv)[1:])
+        rclpy.init(args=argv)
+    except (ParamsError, rclpy_implementation.RCLError) as exc:
+        return _refuse(exc)
     node: Optional[SclamNode] = None
     try:
         node = SclamNode()
         rclpy.spin(node)
     except ParamsError as exc:
-        print(f"sclam_node: {exc}", file=sys.stderr)
-        return 1
+        return _refuse(exc)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
