@@ -13,7 +13,26 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/launch_configs", glob("launch_configs/*")),
     ],
-    install_requires=["setuptools"],
+    # The runtime dependencies of requirements.txt (which pins the tested versions); the
+    # lower bounds are the APIs the code uses. On a ROS install rosdep provides the same
+    # through package.xml.
+    install_requires=[
+        "setuptools",
+        "ros-jazzy-rclpy[fastrtps]",
+        "ros-jazzy-common-interfaces",
+        "numpy>=1.24",
+        "scipy>=1.10",
+        "kiss-icp>=1.0",
+        "rosbags>=0.10",
+        "matplotlib>=3.6",
+        "PyYAML>=6.0",
+        "threadpoolctl>=3.1",
+    ],
+    extras_require={
+        # `sclam fleet` and `sclam calibrate --workers/--scheduler`
+        "fleet": ["dask[distributed]>=2024.1", "bokeh>=3.1"],
+    },
+    python_requires=">=3.10",
     zip_safe=True,
     maintainer="sclam_ros developers",
     maintainer_email="sclam-ros@example.com",

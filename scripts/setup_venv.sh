@@ -6,7 +6,7 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$root/.venv"
 stamp="$venv/.sclam-install-stamp"
-want="$(cat "$root/requirements.txt" "$root/setup.py" "$root/setup.cfg" | sha256sum | cut -d' ' -f1)"
+want="$(cat "$root/requirements.txt" "$root/setup.py" "$root/setup.cfg" "$root/pyproject.toml" | sha256sum | cut -d' ' -f1)"
 
 if [ ! -x "$venv/bin/python" ]; then
   echo "[setup] creating virtual environment $venv" >&2

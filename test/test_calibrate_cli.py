@@ -26,7 +26,8 @@ def test_calibrate_recovers_truth_within_sigma(recording, tmp_path, capsys):
     assert rc == 0
     result = json.loads(out_json.read_text())
     assert set(result) == set(CALIBRATION_KEYS) | {"sigma", "scans_used", "duration_s", "converged",
-                                                   "observable", "warnings", "rejected", "messages"}
+                                                   "observable", "warnings", "rejected", "messages",
+                                                   "nominal", "frames"}
     assert result["converged"] is True
     assert result["scans_used"] > 1400 and result["duration_s"] == pytest.approx(150, abs=1)
     for key in CALIBRATION_KEYS:

@@ -24,6 +24,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
     parser.add_argument("--json", metavar="OUT.json", help="write the estimate and σ as JSON")
     parser.add_argument("--report", metavar="DIR", help="write figures (trajectories, residuals) here")
+    parser.add_argument("--trajectory", metavar="OUT.tum",
+                        help="write the optimised poses in TUM format (for evo) and, beside it, "
+                             "OUT.nominal.tum and OUT.calibrated.tum (wheel odometry with the "
+                             "nominal and the calibrated parameters) and OUT.truth.tum when the "
+                             "recording has ground truth (batch solve; not with --track)")
     parser.add_argument("--truth", metavar="truth.json",
                         help="true values (e.g. from `sclam simulate`) to print beside the estimate")
     parser.add_argument("--track", metavar="OUT.csv",
@@ -193,6 +198,7 @@ def _run(args, warnings) -> int:
     from sclam_ros.core.estimator import CONVERGED_STEP_SIGMA, calibrate_keyframes
     from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.progress import ProgressBar
+    from sclam_ros.io.recording import scan_frame_id
 
     params = SclamParams.from_yaml(args.params)
     truth = json.loads(Path(args.truth).read_text()) if args.truth else None
@@ -218,10 +224,17 @@ def _run(args, warnings) -> int:
         out = result.as_json()
         out["warnings"] = warnings
         out["messages"] = recording.messages
+        out["frames"] = {"base": params.base_frame,
+                         "laser": scan_frame_id(args.bag, params.scan_topic)}  # for sclam export
         atomic_write_text(args.json, json.dumps(out, indent=2) + "\n")
     if args.report:
         from sclam_ros.io.report import write_calibration_report
 
         figures = write_calibration_report(args.report, args.bag, result, params)
         print("figures: " + ", ".join(str(f) for f in figures))
+    if args.trajectory:
+        from sclam_ros.io.export import write_trajectories
+
+        files = write_trajectories(args.trajectory, result, args.bag)
+        print("trajectories (TUM): " + ", ".join(str(f) for f in files))
     return 0

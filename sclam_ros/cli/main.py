@@ -12,6 +12,7 @@ COMMANDS = {
     "play": "Publish a rosbag2 recording on the live ROS graph with its original timing",
     "convert": "Convert a published real-robot log (breezyslam, optiodom) to rosbag2 + params.yaml",
     "diagnose": "Test the calibrated model's residuals and select missing effects on held-out data",
+    "export": "Write a calibration as a URDF joint, a diff_drive_controller block or a params YAML",
     "fleet": "Calibrate many recordings on Dask (local or a cluster); `fleet report`: history, changes",
 }
 
@@ -51,10 +52,11 @@ def input_errors() -> tuple:
     from sclam_ros.fleet.recordings import RecordingsError
     from sclam_ros.io.bag import BagError
     from sclam_ros.io.convert import ConvertError
+    from sclam_ros.io.export import ExportError
 
     # OSError: a path that is a folder, unreadable, or not writable; JSONDecodeError: --truth.
-    return (CommandError, ParamsError, BagError, CalibrationError, ConvertError, RecordingsError,
-            OSError, json.JSONDecodeError)
+    return (CommandError, ParamsError, BagError, CalibrationError, ConvertError, ExportError,
+            RecordingsError, OSError, json.JSONDecodeError)
 
 
 def one_line(exc: BaseException) -> str:

@@ -60,6 +60,9 @@ class CalibrationResult:
         out["duration_s"] = float(self.duration_s)
         out["converged"] = bool(self.converged)
         out["observable"] = {k: bool(self.observable[k]) for k in CALIBRATION_KEYS}
+        # What an unobservable parameter stays at in exports (sclam export) without the
+        # parameters file it came from.
+        out["nominal"] = {k: float(self.nominal[k]) for k in CALIBRATION_KEYS}
         out["rejected"] = dict(sorted(self.rejections.counts.items()))
         return out
 

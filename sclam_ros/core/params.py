@@ -234,9 +234,11 @@ class SclamParams:
     def to_yaml_dict(self, node_name: str = NODE_NAME) -> dict:
         return {node_name: {"ros__parameters": dataclasses.asdict(self)}}
 
+    def yaml_text(self, node_name: str = NODE_NAME, header: str = "") -> str:
+        return header + yaml.safe_dump(self.to_yaml_dict(node_name), sort_keys=False)
+
     def write_yaml(self, path, node_name: str = NODE_NAME, header: str = "") -> None:
-        text = header + yaml.safe_dump(self.to_yaml_dict(node_name), sort_keys=False)
-        atomic_write_text(path, text)
+        atomic_write_text(path, self.yaml_text(node_name, header))
 
 
 def read_yaml_document(path):

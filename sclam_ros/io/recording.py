@@ -172,6 +172,16 @@ def read_recording(path, params, progress=None, start=None, stop=None) -> Record
     return Recording(keyframes, frontend.rejections, counts.as_dict(), frontend)
 
 
+def scan_frame_id(path, topic):
+    """header.frame_id of the first message on `topic` (the laser frame), or None."""
+    messages = bag.iter_messages(path, [topic])
+    try:
+        first = next(messages, None)
+    finally:
+        messages.close()  # the bag's reader with it, now rather than at garbage collection
+    return (str(first[2].header.frame_id) or None) if first is not None else None
+
+
 def read_ground_truth(path, topic=GROUND_TRUTH_TOPIC):
     """(stamps, poses) of a ground-truth nav_msgs/Odometry topic, or None if the bag has none."""
     if topic not in bag.topic_info(path):

@@ -16,7 +16,8 @@ def integrate_odometry(inputs: GraphInputs, k) -> np.ndarray:
     return se2.chain(motion)
 
 
-def _ground_truth_at(bag_path, stamps):
+def ground_truth_at(bag_path, stamps):
+    """The recording's ground truth at `stamps` in the frame of the first, or None."""
     from sclam_ros.io.recording import read_ground_truth
 
     gt = read_ground_truth(bag_path)
@@ -44,7 +45,7 @@ def write_calibration_report(out_dir, bag_path, result, params) -> list:
     figures = []
 
     fig, ax = plt.subplots(figsize=(8, 7))
-    truth = _ground_truth_at(bag_path, inputs.stamps)
+    truth = ground_truth_at(bag_path, inputs.stamps)
     if truth is not None:
         ax.plot(truth[:, 0], truth[:, 1], "k-", lw=2.5, alpha=0.35, label="ground truth")
     nominal = integrate_odometry(inputs, nominal_k)
