@@ -11,7 +11,12 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/launch_configs", glob("launch_configs/*")),
+        # Launch files and parameter files in separate folders, so that a glob over one never
+        # picks up the other (`ros2 launch sclam_ros sclam.launch.py` finds the launch file).
+        ("share/" + package_name + "/launch_configs/launch",
+         glob("launch_configs/launch/*.launch.py")),
+        ("share/" + package_name + "/launch_configs/config",
+         glob("launch_configs/config/*.yaml")),
     ],
     # The runtime dependencies of requirements.txt (which pins the tested versions); the
     # lower bounds are the APIs the code uses. On a ROS install rosdep provides the same

@@ -453,7 +453,7 @@ def test_play_publishes_every_message(graph, recording, tmp_path):
     assert np.all(np.diff(stamps) > 0)
 
 
-@pytest.mark.parametrize("path", sorted((REPO / "launch_configs").glob("*.yaml")),
+@pytest.mark.parametrize("path", sorted((REPO / "launch_configs" / "config").glob("*.yaml")),
                          ids=lambda p: p.name)
 def test_launch_config_loads(path):
     params = SclamParams.from_yaml(path)
@@ -464,10 +464,56 @@ def test_launch_config_loads(path):
 
 def test_node_takes_integer_numbers_from_a_params_file(graph):
     """``ticks_per_revolution: 0`` is an integer in YAML; the double parameter accepts it."""
-    path = REPO / "launch_configs" / "turtlebot_radians.yaml"
+    path = REPO / "launch_configs" / "config" / "turtlebot_radians.yaml"
     raw = yaml.safe_load(path.read_text())["sclam"]["ros__parameters"]
     assert isinstance(raw["ticks_per_revolution"], int)
     node = graph.add(SclamNode(context=graph.context, parameter_overrides=[
         Parameter(k, value=v) for k, v in raw.items()]))
     assert node.params == SclamParams.from_yaml(path)
     assert node.params.left_wheel_joint == "wheel_left_joint"
+
+
+class _Logger:
+    """Records what the node logs (rclpy's logger writes to the C-level stderr, which pytest
+    cannot capture)."""
+
+    def __init__(self):
+        self.lines = []
+
+    def _log(self, level):
+        return lambda message, **_: self.lines.append((level, str(message)))
+
+    def __getattr__(self, level):  # debug, info, warn, warning, error, fatal
+        return self._log(level)
+
+
+def test_publish_tf_without_tf2_msgs_says_so_once(graph, monkeypatch):
+    """tf2_msgs is not among the PyPI wheels: ``publish_tf: true`` then logs once that TF is
+    not published, publishes nothing on /tf, and the node works on (~/odom)."""
+    import sclam_ros.ros.tf as tf
+
+    if tf.TFMessage is not None:
+        pytest.skip("tf2_msgs is importable here: the missing case cannot happen")
+    logger = _Logger()
+    monkeypatch.setattr(SclamNode, "get_logger", lambda self: logger)
+    node = graph.add(SclamNode(context=graph.context,
+                               parameter_overrides=[Parameter("publish_tf", value=True)]))
+    assert node.tf is None
+    graph.subscribe(Odometry, "/sclam/odom")
+    pub = graph.tester.create_publisher(JointState, "/joint_states", 100)
+    wait_for(lambda: pub.get_subscription_count() > 0, what="the node's subscription")
+    for i in range(20):
+        msg = JointState(name=["left_wheel_joint", "right_wheel_joint"], position=[0.1 * i] * 2)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 100, 10_000_000 * i
+        pub.publish(msg)
+    wait_for(lambda: len(graph.messages("/sclam/odom")) >= 10, what="odometry")
+    missing = [text for _, text in logger.lines if "tf2_msgs" in text]
+    assert len(missing) == 1 and "TF is not published" in missing[0]
+    assert graph.tester.count_publishers("/tf") == 0
+    assert graph.tester.count_publishers("/tf_static") == 0
+    assert node.get_parameter("publish_tf").value is True
+
+
+def test_publish_tf_is_off_by_default(graph):
+    node = graph.add(SclamNode(context=graph.context))
+    assert node.get_parameter("publish_tf").value is False and node.tf is None

@@ -1,6 +1,6 @@
 """The one typed home of every user-facing parameter.
 
-The node, the CLI and the YAML files in launch_configs/ all read this dataclass, so a
+The node, the CLI and the YAML files in launch_configs/config/ all read this dataclass, so a
 name, a default, a unit or a validity rule is written down exactly once.
 
 A parameters file is a standard ROS 2 one::
@@ -173,6 +173,12 @@ class SclamParams:
     base_frame: str = _param("base_link", "robot base frame (REP-105)", _non_empty)
     odom_frame: str = _param("odom", "odometry frame (REP-105)", _non_empty)
 
+    # The names a parameters file set (from_dict fills it); empty for params built in code.
+    # Not a field (no annotation): it is not a parameter, is not written to YAML and does not
+    # make two equal parameter sets differ. Lets a default be told from a value the user chose,
+    # e.g. to take the nominal laser pose from the recording's /tf_static only when unset.
+    explicit_keys = frozenset()
+
     def validate(self) -> "SclamParams":
         """Raise ParamsError listing every invalid value."""
         problems = []
@@ -223,7 +229,9 @@ class SclamParams:
                 raise ParamsError(
                     f"{source}: {name} must be a {type(default).__name__}, got {value!r}"
                 ) from None
-        return cls(**values).validate()
+        params = cls(**values).validate()
+        params.explicit_keys = frozenset(raw)
+        return params
 
     @classmethod
     def from_yaml(cls, path, node_name: str = NODE_NAME) -> "SclamParams":

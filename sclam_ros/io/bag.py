@@ -413,3 +413,25 @@ class BagWriter:
         msg = TYPESTORE.types[msgtype](header=header_msg(stamp_s, frame_id), pose=_pose_msg(pose_xyth))
         self.write(topic, msgtype, msg, stamp_s if record_time_s is None else record_time_s)
 
+
+    def write_tf_static(self, stamp_s, transforms, topic="/tf_static", record_time_s=None) -> None:
+        """tf2_msgs/TFMessage of static transforms, as robot_state_publisher latches them.
+
+        ``transforms``: (parent, child, (x, y, z), (qx, qy, qz, qw)) each, in 3D so that a
+        tilted mount can be written too."""
+        msgtype = "tf2_msgs/msg/TFMessage"
+        types = TYPESTORE.types
+        msg = types[msgtype](transforms=[
+            types["geometry_msgs/msg/TransformStamped"](
+                header=header_msg(stamp_s, parent),
+                child_frame_id=child,
+                transform=types["geometry_msgs/msg/Transform"](
+                    translation=types["geometry_msgs/msg/Vector3"](
+                        x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2])),
+                    rotation=types["geometry_msgs/msg/Quaternion"](
+                        x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+                ),
+            )
+            for parent, child, xyz, q in transforms
+        ])
+        self.write(topic, msgtype, msg, stamp_s if record_time_s is None else record_time_s)

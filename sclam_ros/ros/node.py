@@ -47,7 +47,10 @@ Services (std_srvs/Trigger)
                            and in the response
 Parameters
   every field of SclamParams (same names, defaults, units in the descriptions), plus
-  ``calibration_file`` (default ``sclam_calibration.yaml``, relative to the working directory).
+  ``calibration_file`` (default ``sclam_calibration.yaml``, relative to the working directory),
+  and ``publish_tf`` (default false): also broadcast odom → ``base_frame`` on /tf and
+  ``base_frame`` → the scan's frame on /tf_static (re-sent when it changes), if tf2_msgs is
+  importable (ros/tf.py); without it the node says so once and publishes no TF.
   At runtime ``window_distance``, ``wheel_noise``, ``lateral_noise``, ``odom_frame``,
   ``base_frame`` and ``calibration_file`` can be changed; the others are read-only.
 """
@@ -89,6 +92,7 @@ from sclam_ros.core.params import (
 )
 from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan
 from sclam_ros.online.odometry import OdometryIntegrator
+from sclam_ros.ros.tf import TfBroadcaster
 from sclam_ros.online.process import CalibratorProcess
 from sclam_ros.online.status import (
     OK,
@@ -138,6 +142,7 @@ class SclamNode(Node):
         self._warn_unknown_parameters()
         self.params = self._read_params()
         self.calibration_file = self.get_parameter("calibration_file").value
+        self.laser_frame = None  # header.frame_id of the scans, once one came
         self.rejections = Rejections()  # message conversion; the calibrator counts its own
         self.odometry = OdometryIntegrator(self.params)
         self.received = {"joint_states": 0, "scan": 0}
@@ -149,6 +154,8 @@ class SclamNode(Node):
         self.laser_pub = self.create_publisher(PoseWithCovarianceStamped, "~/laser_pose", latched)
         self.wheel_pub = self.create_publisher(Float64MultiArray, "~/wheel_parameters", latched)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.tf = (TfBroadcaster.create(self) if self.get_parameter("publish_tf").value
+                   else None)
         self.create_subscription(JointState, self.params.joint_states_topic,
                                  self._on_joint_state, 200)
         self.create_subscription(LaserScan, self.params.scan_topic, self._on_scan, SCAN_QOS)
@@ -193,6 +200,15 @@ class SclamNode(Node):
             "calibration_file", DEFAULT_CALIBRATION_FILE,
             ParameterDescriptor(description="where ~/save_calibration writes the parameters "
                                             "YAML with the current estimate"),
+        )
+        self.declare_parameter(
+            "publish_tf", False,
+            ParameterDescriptor(description="broadcast odom → base_frame (/tf) and base_frame → "
+                                            "the scan's frame (/tf_static) with the calibration; "
+                                            "off when another node (a driver, "
+                                            "robot_state_publisher) already does "
+                                            "(read-only: restart the node to change)",
+                                read_only=True),
         )
 
     def _warn_unknown_parameters(self):
@@ -254,6 +270,7 @@ class SclamNode(Node):
         self.received["scan"] += 1
         try:
             scan = laser_scan_to_scan(msg)
+            self.laser_frame = scan.frame_id
             if len(scan.ranges) == 0:
                 self._reject("scan_empty", "LaserScan without ranges")
                 return
@@ -296,6 +313,8 @@ class SclamNode(Node):
         odom.twist.twist.angular.z = float(twist[2])
         odom.twist.covariance = _covariance36(self.odometry.twist_cov)
         self.odom_pub.publish(odom)
+        if self.tf is not None:
+            self.tf.odometry(odom.header.stamp, odom.header.frame_id, odom.child_frame_id, pose)
 
     def _publish_estimate(self, estimate):
         """~/laser_pose and ~/wheel_parameters (called on the calibrator's reader thread)."""
@@ -310,6 +329,9 @@ class SclamNode(Node):
         _yaw_quaternion(laser.pose.pose.orientation, float(estimate.values["laser_yaw"]))
         laser.pose.covariance = _covariance36(np.asarray(estimate.covariance)[3:, 3:])
         self.laser_pub.publish(laser)
+        if self.tf is not None and self.laser_frame:
+            self.tf.laser(laser.header.stamp, self.params.base_frame, self.laser_frame,
+                          [estimate.values[k] for k in ("laser_x", "laser_y", "laser_yaw")])
 
         wheels = Float64MultiArray()
         wheels.layout.dim = [
