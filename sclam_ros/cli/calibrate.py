@@ -74,15 +74,38 @@ TRACK_COLUMNS = ("t", *CALIBRATION_KEYS, *(f"sigma_{k}" for k in CALIBRATION_KEY
                  *(f"observable_{k}" for k in CALIBRATION_KEYS))
 
 
+class _KeepingKeyframes:
+    """An OnlineCalibrator fed as the node feeds it, with the per-scan keyframes its front
+    end makes kept aside: the wiring check needs the whole recording's motion, which the
+    sliding window forgets (a keyframe holds no scan points: ~1 kB each)."""
+
+    def __init__(self, calibrator):
+        self.calibrator = calibrator
+        self.rejections = calibrator.rejections
+        self.keyframes = []
+
+    def add_encoder(self, stamp, left_raw, right_raw):
+        return self._add(self.calibrator.frontend.add_encoder(stamp, left_raw, right_raw))
+
+    def add_scan(self, scan):
+        return self._add(self.calibrator.frontend.add_scan(scan))
+
+    def _add(self, keyframes):
+        self.keyframes += keyframes
+        return self.calibrator.add_keyframes(keyframes)
+
+
 def track(bag, params, progress=None):
     """Feed a recording through the node's OnlineCalibrator in record order, as fast as it can.
 
-    Returns (rows, calibrator): one row per window solve, in TRACK_COLUMNS order.
+    Returns (rows, calibrator, keyframes): one row per window solve, in TRACK_COLUMNS order,
+    and the per-scan keyframes the calibrator was given.
     """
     from sclam_ros.io.recording import iter_outputs
     from sclam_ros.online.window import OnlineCalibrator
 
     calibrator = OnlineCalibrator(params)
+    sink = _KeepingKeyframes(calibrator)
     rows = []
 
     def record(estimate):
@@ -92,11 +115,11 @@ def track(bag, params, progress=None):
                          *(int(estimate.observable[k]) for k in CALIBRATION_KEYS)])
 
     # The messages in record order through the same calls the node makes in its callbacks.
-    for estimate in iter_outputs(bag, params, calibrator, progress):
+    for estimate in iter_outputs(bag, params, sink, progress):
         record(estimate)
     # No flush at the end: the live node never sees an end either, so both stop at the
     # same last estimate.
-    return rows, calibrator
+    return rows, calibrator, sink.keyframes
 
 
 def write_track(path, rows) -> None:
@@ -112,14 +135,19 @@ def _run_track(args, params, truth) -> int:
 
     from sclam_ros.cli.progress import ProgressBar
 
-    from sclam_ros.core.estimator import CalibrationError
+    from sclam_ros.core.estimator import CalibrationError, check_wiring
 
-    rows, calibrator = track(args.bag, params, ProgressBar("online calibration", not args.quiet))
+    rows, calibrator, keyframes = track(args.bag, params,
+                                        ProgressBar("online calibration", not args.quiet))
     _warn_about_input(calibrator.rejections, calibrator.frontend)
+    # The batch solve's refusal, on the same keyframes: the window would absorb swapped or
+    # backwards encoders into absurd values with small σ.
+    check_wiring(keyframes, params)
     estimate = calibrator.estimate
     if estimate is None:  # refused before writing: exit status 2 leaves no output behind
         raise CalibrationError("the online calibrator produced no estimate (too little motion, "
-                               "or no scans paired with encoder data)")
+                               "or no scans paired with encoder data). Rejections: "
+                               f"{calibrator.rejections}")
     write_track(args.track, rows)
     print(f"online: {len(rows)} window solves, window {estimate.window_distance:.1f} m "
           f"({estimate.keyframes_in_window} keyframes); last estimate at t = {estimate.stamp:.3f} s")
@@ -155,10 +183,25 @@ def _register(args, params, progress):
     return Recording(keyframes, rejections)
 
 
+# Rejections that every recording has: the first scans of each local map only build it.
+EXPECTED_REJECTIONS = {"match_map_warmup"}
+
+
 def _warn_about_input(rejections, frontend) -> None:
     """Say what the data path dropped or could not refine, so nothing is lost silently."""
-    if rejections.total():
-        log.warning("rejected input (counted, not used): %s", rejections)
+    # The scans that build each new local map (the first few of a recording) are not matched
+    # by design: an info, so that a clean recording ends without a warning.
+    unexpected = {r: n for r, n in rejections.counts.items() if r not in EXPECTED_REJECTIONS}
+    expected = {r: n for r, n in rejections.counts.items() if r in EXPECTED_REJECTIONS}
+    if unexpected:
+        log.warning("rejected input (counted, not used): %s",
+                    ", ".join(f"{r}: {n}" for r, n in sorted(unexpected.items())))
+    if expected:
+        log.info("not used by design: %s", ", ".join(f"{r}: {n}" for r, n in sorted(expected.items())))
+    if frontend is not None and frontend.skipped_scans:
+        log.info("%d scans of a fast laser not matched: it is matched every %d scans, about "
+                 "10 Hz (sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
+                 frontend.decimator.every)
     if frontend is not None and frontend.matcher.odometry_guess_failures:
         log.warning("%d scan(s) could only be registered from the previous scan's motion: the "
                     "wheel odometry under the nominal calibration predicted them badly (nominal "
@@ -169,6 +212,10 @@ def _warn_about_input(rejections, frontend) -> None:
         log.warning("%d scan match(es) kept KISS-ICP's motion without the point-to-line "
                     "refinement: too few points on lines (no walls in view?); such motions "
                     "can be slightly short", unrefined["no_lines"])
+    if unrefined.get("correction_too_large"):
+        log.warning("%d scan match(es) kept KISS-ICP's motion: the point-to-line refinement "
+                    "would have moved them by more than 5 cm (lines that are not walls: an "
+                    "outdoor scene?)", unrefined["correction_too_large"])
 
 
 class _Warnings(logging.Handler):
@@ -199,8 +246,12 @@ def _run(args, warnings) -> int:
     from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.progress import ProgressBar
     from sclam_ros.io.recording import scan_frame_id
+    from sclam_ros.io.tf_static import with_nominal_laser_pose
 
     params = SclamParams.from_yaml(args.params)
+    # The URDF's laser pose, latched on /tf_static, for whatever laser_* the file leaves unset.
+    params, laser_source = with_nominal_laser_pose(args.bag, params)
+    print(laser_source)
     truth = json.loads(Path(args.truth).read_text()) if args.truth else None
     if args.track:
         return _run_track(args, params, truth)

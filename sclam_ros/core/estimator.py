@@ -92,6 +92,15 @@ def residual_rms(problem, values, system=None) -> dict:
             for name, stats in system.per_factor.items() if name in measured}
 
 
+def check_wiring(keyframes, params) -> None:
+    """CalibrationError naming the fix if the encoders contradict the laser's motion
+    (core/wiring.py): swapped or backwards encoders make every number the graph would
+    give wrong. The batch solve and `sclam calibrate --track` both refuse on it."""
+    miswired = wiring_problem(keyframes, params)
+    if miswired:
+        raise CalibrationError(miswired)
+
+
 def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> CalibrationResult:
     if len(keyframes) < MIN_KEYFRAMES:
         raise CalibrationError(
@@ -99,10 +108,7 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
             f"{MIN_KEYFRAMES}); check the topic names, joint names and that the clocks of "
             f"both sensors overlap. Rejections: {rejections or 'none'}"
         )
-    # Swapped or backwards encoders: every number the graph would give is wrong.
-    miswired = wiring_problem(keyframes, params)
-    if miswired:
-        raise CalibrationError(miswired)
+    check_wiring(keyframes, params)
     inputs = graph_mod.GraphInputs.from_keyframes(
         graph_mod.merge_keyframes(keyframes, params.keyframe_interval))
     if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
