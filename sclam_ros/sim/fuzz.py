@@ -299,32 +299,37 @@ MCAP_SYMPTOMS = {
 }
 
 
+def spray_mcap(source, broken, region, symptom, topics=None):
+    """Copy the rosbag2 folder `source` (one .mcap) to `broken` with 200 random bytes written at
+    a seeded place of `region` (fraction of the file), trying seeds until ``symptom(counts,
+    info)`` holds for what the reader then returns; that bag.ReadCounts, or RuntimeError."""
+    info = bag.topic_info(source)
+    good = next(Path(source).glob("*.mcap")).read_bytes()
+    shutil.copytree(source, broken)
+    target = next(Path(broken).glob("*.mcap"))
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        data = bytearray(good)
+        at = int(len(data) * (region + 0.02 * rng.random()))
+        data[at:at + 200] = rng.bytes(200)
+        target.write_bytes(bytes(data))
+        counts = bag.ReadCounts()
+        for _ in bag.iter_messages(broken, list(topics or info), counts=counts):
+            pass
+        if symptom(counts, info):
+            return counts
+    raise RuntimeError("no seed produced the symptom")
+
+
 def _mcap_bytes(region, symptom):
     def make(sources, out):
         import logging
 
-        src = sources / "good_mcap"
-        info = bag.topic_info(src)
-        good = next(src.glob("*.mcap")).read_bytes()
         broken = out / "bag"
-        shutil.copytree(src, broken)
-        target = next(broken.glob("*.mcap"))
         quiet = logging.getLogger("sclam")
         level, quiet.level = quiet.level, logging.ERROR  # the probing reads warn: not the case's
         try:
-            for seed in range(60):
-                rng = np.random.default_rng(seed)
-                data = bytearray(good)
-                at = int(len(data) * (region + 0.02 * rng.random()))
-                data[at:at + 200] = rng.bytes(200)
-                target.write_bytes(bytes(data))
-                counts = bag.ReadCounts()
-                for _ in bag.iter_messages(broken, list(TOPICS), counts=counts):
-                    pass
-                if MCAP_SYMPTOMS[symptom](counts, info):
-                    break
-            else:
-                raise RuntimeError(f"no seed made the symptom {symptom}")
+            spray_mcap(sources / "good_mcap", broken, region, MCAP_SYMPTOMS[symptom], TOPICS)
         finally:
             quiet.level = level
         return broken, broken / "params.yaml"
