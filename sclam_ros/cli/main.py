@@ -17,7 +17,10 @@ COMMANDS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser; with `command`, only that subcommand's module is imported (the others are
+    listed by name): importing every command (diagnose pulls in scipy.stats, simulate the
+    simulator) cost each run about 3 s before it started."""
     parser = argparse.ArgumentParser(
         prog="sclam",
         description="Simultaneous calibration, localization and mapping for differential-drive "
@@ -25,12 +28,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, help_text in COMMANDS.items():
+        if command is not None and name != command:
+            sub.add_parser(name, help=help_text)
+            continue
         module = importlib.import_module(f"sclam_ros.cli.{name}")
         p = sub.add_parser(name, help=help_text, description=module.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)
         p.set_defaults(_module=module)
     return parser
+
+
+def _command_in(argv) -> str | None:
+    """The subcommand named in `argv` (its first word that is one), or None."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
 
 
 # Exit status of a command whose input is unusable (argparse uses it for bad arguments).
@@ -83,7 +97,8 @@ class _LowerCaseLevel(logging.Formatter):
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(_command_in(argv)).parse_args(argv)
     logging.basicConfig(level=logging.INFO)
     for handler in logging.getLogger().handlers:
         if type(handler) is logging.StreamHandler:  # basicConfig's (a test harness has its own)

@@ -106,13 +106,18 @@ class EncoderStream:
         self._last_raw: Optional[tuple[float, float]] = None
         self._last_stamp: Optional[float] = None
         self._periods: deque = deque(maxlen=PERIOD_SAMPLE)  # recent steps between samples
+        self._steps_seen = 0
+        self._gap_limit: Optional[float] = None  # max_gap from _periods, until judged again
 
     @property
     def max_gap(self) -> float:
         """The longest step between samples still interpolated across (see SyncConfig)."""
         if len(self._periods) < MIN_PERIOD_SAMPLE:
             return self.config.max_gap
-        return max(self.config.max_gap, self.config.gap_periods * float(np.median(self._periods)))
+        if self._gap_limit is None:  # a median per sample was 8 % of a batch run's time
+            self._gap_limit = max(self.config.max_gap,
+                                  self.config.gap_periods * float(np.median(self._periods)))
+        return self._gap_limit
 
     @classmethod
     def from_params(cls, params, config=None, rejections=None) -> "EncoderStream":
@@ -144,6 +149,11 @@ class EncoderStream:
                 if step > self.max_gap:
                     cause = "gap"
                 self._periods.append(step)
+                # The limit follows the rate: judged again after every PERIOD_SAMPLE steps,
+                # and at every step until the sample is full.
+                self._steps_seen += 1
+                if self._steps_seen % PERIOD_SAMPLE == 0 or self._steps_seen <= PERIOD_SAMPLE:
+                    self._gap_limit = None
         # The history holds unwrapped positions in raw units (integer tick counts stay exact
         # in a float64 up to 2^53); radians are produced on the way out.
         left, right = left_raw, right_raw
