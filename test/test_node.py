@@ -6,6 +6,7 @@ each other.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -133,7 +134,8 @@ def graph():
 
 
 def start_node(graph, params, **extra):
-    overrides = [Parameter(k, value=v) for k, v in vars(params).items()]
+    # The dataclass fields only: SclamParams also carries which keys its file set.
+    overrides = [Parameter(f.name, value=getattr(params, f.name)) for f in dataclasses.fields(params)]
     overrides += [Parameter(k, value=v) for k, v in extra.items()]
     return graph.add(SclamNode(context=graph.context, parameter_overrides=overrides))
 

@@ -84,7 +84,7 @@ def test_live_node_ends_where_the_offline_track_ends(tmp_path):
         assert node.poll() is None, node.stdout.read()
         play = subprocess.run(
             [str(VENV_BIN / "sclam"), "play", str(bag), "--rate", "3", "--clock",
-             "--topics", "/joint_states", "/scan"],
+             "--topics", "/joint_states", "/scan", "--wait-for-subscribers", "20"],
             cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT,
         )
         assert play.returncode == 0, play.stdout + play.stderr
