@@ -32,6 +32,7 @@ setup(
         "matplotlib>=3.6",
         "PyYAML>=6.0",
         "threadpoolctl>=3.1",
+        "yourdfpy>=0.0.60",
     ],
     extras_require={
         # `sclam fleet` and `sclam calibrate --workers/--scheduler`

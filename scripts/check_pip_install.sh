@@ -2,7 +2,7 @@
 # Install this package as a user would, `pip install .` into a fresh virtual environment
 # (the system's python and pip, nothing from .venv), then, from outside the source tree so
 # that what runs is the installed package with only its declared dependencies: `sclam
-# calibrate` on the demo recording, `sclam export` on its result and `sclam_node --help`.
+# calibrate --urdf` on the demo recording, `sclam export` on its result and `sclam_node --help`.
 # Pip's own settings (PIP_FIND_LINKS, pip.conf) apply as on any install.
 # Usage: scripts/check_pip_install.sh [PYTHON]
 set -euo pipefail
@@ -28,10 +28,16 @@ for script in sclam sclam_node; do
     exit 1
   fi
 done
-echo "[check] sclam calibrate data/demo/powerbot"
+echo "[check] sclam calibrate data/demo/powerbot --urdf robot.urdf"
 demo="$root/data/demo/powerbot"
+# The parameters file sets laser_*, so they win; the URDF is still read (yourdfpy installed).
+cat > robot.urdf <<'URDF'
+<robot name="powerbot"><link name="base_link"/><link name="laser"/>
+  <joint name="laser_joint" type="fixed"><parent link="base_link"/><child link="laser"/>
+    <origin xyz="0.22 0 0.3" rpy="0 0 0"/></joint></robot>
+URDF
 sclam calibrate "$demo" --params "$demo/params.yaml" --truth "$demo/truth.json" --quiet \
-  --json calibration.json --trajectory run.tum
+  --urdf robot.urdf --json calibration.json --trajectory run.tum
 echo "[check] sclam export calibration.json --format diff-drive / urdf"
 sclam export calibration.json --format diff-drive
 sclam export calibration.json --format urdf

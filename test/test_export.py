@@ -43,15 +43,22 @@ def _export(capsys, *args):
 
 
 def test_urdf_joint_places_the_laser_where_the_calibration_says(tmp_path, capsys):
+    """The exported joint, put in a minimal robot, loads with yourdfpy (the URDF library
+    `sclam calibrate --urdf` reads with) and puts the laser at the calibrated pose."""
+    yourdfpy = pytest.importorskip("yourdfpy")
     text = _export(capsys, _calibration_file(tmp_path), "--format", "urdf")
-    joint = ET.fromstring(text[text.index("<joint"):])  # after the comment
-    assert joint.get("type") == "fixed"
-    assert joint.find("parent").get("link") == "base_footprint"
-    assert joint.find("child").get("link") == "lidar_link"
-    xyz = [float(v) for v in joint.find("origin").get("xyz").split()]
-    rpy = [float(v) for v in joint.find("origin").get("rpy").split()]
-    assert xyz[:2] == pytest.approx([CALIBRATION["laser_x"], CALIBRATION["laser_y"]], abs=1e-6)
-    assert rpy[2] == pytest.approx(CALIBRATION["laser_yaw"], abs=1e-6)
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text(f'<robot name="robot"><link name="base_footprint"/><link name="lidar_link"/>'
+                    f"{text}</robot>")
+    robot = yourdfpy.URDF.load(str(urdf), load_meshes=False)
+    (joint,) = robot.robot.joints
+    assert (joint.type, joint.parent, joint.child) == ("fixed", "base_footprint", "lidar_link")
+    placed = robot.get_transform("lidar_link", "base_footprint")  # base ← laser
+    assert placed[:2, 3] == pytest.approx([CALIBRATION["laser_x"], CALIBRATION["laser_y"]],
+                                          abs=1e-6)
+    assert math.atan2(placed[1, 0], placed[0, 0]) == pytest.approx(CALIBRATION["laser_yaw"],
+                                                                   abs=1e-6)
+    assert placed[2, 2] == pytest.approx(1.0)  # level: no roll or pitch
 
 
 def test_unobservable_parameter_keeps_its_nominal_value_and_is_named(tmp_path, capsys, params_file):
@@ -178,9 +185,14 @@ def test_calibrated_odometry_is_closer_to_the_truth_than_nominal(calibrated):
     assert np.sqrt(np.mean(corrected**2)) < 0.5 * np.sqrt(np.mean(nominal**2))
 
 
-@pytest.mark.parametrize("command", sorted(COMMANDS))
+@pytest.mark.parametrize("command", ["", *sorted(COMMANDS), "fleet report"])
 def test_every_command_prints_its_help(command, capsys):
+    """`sclam --help` and `sclam COMMAND --help` exit 0 (sclam_node --help: test_robustness)."""
     with pytest.raises(SystemExit) as exit_:
-        main([command, "--help"])
+        main([*command.split(), "--help"])
     assert exit_.value.code == 0
-    assert f"sclam {command}" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    if command:
+        assert out.startswith(f"usage: sclam {command.split()[0]}")
+    else:  # every command listed
+        assert out.startswith("usage: sclam") and all(name in out for name in COMMANDS)

@@ -28,7 +28,7 @@ RESTRICTED = {
     "rclpy": {"ros"}, "rosgraph_msgs": {"ros"}, "sensor_msgs": {"ros"}, "nav_msgs": {"ros"},
     "std_msgs": {"ros"}, "geometry_msgs": {"ros"}, "diagnostic_msgs": {"ros"},
     "std_srvs": {"ros"}, "rcl_interfaces": {"ros"}, "tf2_msgs": {"ros"},
-    "rosbags": {"io"},
+    "rosbags": {"io"}, "yourdfpy": {"io"},
     "dask": {"fleet"}, "distributed": {"fleet"},
 }
 

@@ -11,7 +11,7 @@ from sclam_ros.cli.main import main
 from sclam_ros.core.inputs import Scan
 from sclam_ros.core.params import LASER_KEYS, SclamParams
 from sclam_ros.io.bag import BagWriter, iter_messages, topic_info
-from sclam_ros.io.tf_static import with_nominal_laser_pose
+from sclam_ros.io.tf_static import LaserMountError, with_nominal_laser_pose
 from sclam_ros.sim import simulate
 
 
@@ -110,6 +110,25 @@ def test_tilted_laser_is_warned_about(tmp_path, caplog):
     assert "tilted" not in caplog.text  # within a degree: a mount's tolerance
 
 
+def test_upside_down_laser_is_refused(tmp_path):
+    """Scans in a frame whose z points down are mirrored: the planar model cannot fit them
+    (it would see the robot turn the other way), whatever the nominal pose."""
+    for rotation in (_quat(roll=math.pi), _quat(pitch=math.pi, yaw=math.pi)):
+        bag = _bag(tmp_path / f"bag{rotation}", [("base_link", "laser", (0.2, 0.0, 0.3), rotation)])
+        with pytest.raises(LaserMountError, match="mounted upside down"):
+            with_nominal_laser_pose(bag, _params(tmp_path, laser_x=0.2, laser_y=0.0, laser_yaw=0.0))
+
+
+def params_without_laser_pose(sim) -> str:
+    """A copy of a simulated recording's params.yaml without laser_*, beside it."""
+    raw = yaml.safe_load((sim / "params.yaml").read_text())
+    for key in LASER_KEYS:
+        del raw["sclam"]["ros__parameters"][key]
+    path = sim.parent / f"{sim.name}.no_laser.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return str(path)
+
+
 def test_calibrate_prints_and_uses_the_tf_static_pose(tmp_path, capsys):
     """`sclam calibrate` on a simulated recording with /tf_static added and a parameters file
     without laser_*: the nominal laser pose is the latched one, and it says so."""
@@ -123,11 +142,7 @@ def test_calibrate_prints_and_uses_the_tf_static_pose(tmp_path, capsys):
         info = topic_info(sim)
         for topic, t, msg in iter_messages(sim, sorted(info)):
             out.write(topic, info[topic][0], msg, t)
-    raw = yaml.safe_load((sim / "params.yaml").read_text())
-    for key in LASER_KEYS:
-        del raw["sclam"]["ros__parameters"][key]
-    (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
-    rc = main(["calibrate", str(bag), "--params", str(tmp_path / "p.yaml"), "--quiet",
+    rc = main(["calibrate", str(bag), "--params", params_without_laser_pose(sim), "--quiet",
                "--json", str(tmp_path / "c.json")])
     assert rc == 0
     assert "nominal laser pose from /tf_static base_link → laser" in capsys.readouterr().out

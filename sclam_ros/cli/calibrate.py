@@ -22,6 +22,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="rosbag2 folder, or its .db3 / .mcap file")
     parser.add_argument("--params", required=True, metavar="PARAMS.yaml",
                         help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
+    parser.add_argument("--urdf", metavar="ROBOT.urdf",
+                        help="take the nominal laser pose (x, y, yaw) from this URDF: the chain "
+                             "of fixed joints from base_frame to the scan's frame_id, instead of "
+                             "the recording's /tf_static; laser_x, laser_y, laser_yaw set in "
+                             "the parameters file still win")
     parser.add_argument("--json", metavar="OUT.json", help="write the estimate and σ as JSON")
     parser.add_argument("--report", metavar="DIR", help="write figures (trajectories, residuals) here")
     parser.add_argument("--trajectory", metavar="OUT.tum",
@@ -249,8 +254,8 @@ def _run(args, warnings) -> int:
     from sclam_ros.io.tf_static import with_nominal_laser_pose
 
     params = SclamParams.from_yaml(args.params)
-    # The URDF's laser pose, latched on /tf_static, for whatever laser_* the file leaves unset.
-    params, laser_source = with_nominal_laser_pose(args.bag, params)
+    # The URDF's laser pose (--urdf, or latched on /tf_static) for the laser_* the file leaves unset.
+    params, laser_source = with_nominal_laser_pose(args.bag, params, args.urdf)
     print(laser_source)
     truth = json.loads(Path(args.truth).read_text()) if args.truth else None
     if args.track:

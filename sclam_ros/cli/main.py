@@ -67,10 +67,11 @@ def input_errors() -> tuple:
     from sclam_ros.io.bag import BagError
     from sclam_ros.io.convert import ConvertError
     from sclam_ros.io.export import ExportError
+    from sclam_ros.io.tf_static import LaserMountError
 
     # OSError: a path that is a folder, unreadable, or not writable; JSONDecodeError: --truth.
     return (CommandError, ParamsError, BagError, CalibrationError, ConvertError, ExportError,
-            RecordingsError, OSError, json.JSONDecodeError)
+            LaserMountError, RecordingsError, OSError, json.JSONDecodeError)
 
 
 def one_line(exc: BaseException) -> str:

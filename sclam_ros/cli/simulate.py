@@ -34,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--effect", action="append", default=[], metavar="NAME[=VALUE]",
                         help="switch on an un-modelled effect; VALUE is V1[,V2...] in parameter "
-                        "order or key:value,... . Effects: " + effects_help)
+                        "order or key:value,... . Effects: "
+                        + effects_help.replace("%", "%%"))  # argparse %-formats help text
     parser.add_argument("--scan-rate", type=float, default=10.0, help="Hz (default: %(default)s)")
     parser.add_argument("--beams", type=int, default=360, help="beams per scan (default: %(default)s)")
     parser.add_argument("--encoder-rate", type=float, default=50.0, help="Hz (default: %(default)s)")
