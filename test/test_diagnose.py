@@ -31,7 +31,9 @@ def test_cli_selects_time_offset(tmp_path_factory, tmp_path):
         "--report", str(tmp_path / "report"), "--quiet",
     ]) == 0
     report = json.loads(out.read_text())
-    assert set(report) == {"base", "extended", "error_metric", "effects", "unexplained"}
+    assert set(report) == {"base", "extended", "error_metric", "effects", "unexplained",
+                           "unexplained_cause", "not_separable", "calibration_shift_sigma",
+                           "warnings"}
     for model in ("base", "extended"):
         assert set(report[model]["params"]) == set(CALIBRATION_KEYS)
         assert set(report[model]["residual_rms"]) == {"odometry", "laser"}

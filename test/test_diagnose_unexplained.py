@@ -37,7 +37,7 @@ def _no_confident_wrong_attribution(report):
     # 3 % out-of-round wheels: odometry error once per wheel revolution.
     ("wheel_eccentricity", 0.03, 40.0, "wheel_angle"),
     # forward slip 0.15·u²: 5.4 % at 0.6 m/s, 0.6 % at 0.2 m/s.
-    ("speed_dependent_slip", 0.15, 60.0, "speed_squared"),
+    ("speed_dependent_slip", 0.15, 60.0, "v_squared"),
 ])
 def test_non_library_effect_is_reported_unexplained(tmp_path, name, value, duration, regressor):
     report = _diagnose(tmp_path, name, value, duration)

@@ -142,27 +142,6 @@ def test_turn_rates_from_scan_matches():
     assert np.allclose(d.turn_rates, t[2:-2] + 0.05)
 
 
-def test_floor_noise_recovers_region_factors():
-    """Synthetic disagreements with four times the odometry variance where x > median:
-    the regions split at the medians (equal counts), the factors' ratio comes back."""
-    from sclam_ros.diagnosis.diagnose import Disagreement
-
-    m = 4000
-    local = np.random.default_rng(3)
-    positions = np.column_stack([local.uniform(0, 20, m + 1), local.uniform(0, 5, m + 1)])
-    positions[:, 1] += np.where(positions[:, 0] > 10, 3.0, 0.0)  # an L-ish spread
-    effect = LIBRARY["floor_noise"](EffectData(np.arange(m + 1.0), np.zeros((m + 1, 2)), positions))
-    pose_i, pose_j = np.arange(m), np.arange(m)  # an edge at each position
-    odometry_cov = np.tile(np.diag([4e-6, 1e-6, 3e-5]), (m, 1, 1))
-    laser_cov = np.tile(np.diag([1e-6, 1e-6, 2e-6]), (m, 1, 1))
-    truth = np.where(positions[:m, 0] > 10, 4.0, 1.0)
-    cov = odometry_cov * truth[:, None, None] + laser_cov
-    d = np.einsum("mij,mj->mi", np.linalg.cholesky(cov), local.standard_normal((m, 3)))
-    effect.fit(pose_i, pose_j, Disagreement(d, odometry_cov, laser_cov).nll)
-    assert np.bincount(effect.region(pose_i, pose_j)).tolist() == [m // 4] * 4
-    assert effect.value() == pytest.approx(4.0, rel=0.2)
-
-
 def test_wheel_speeds_from_keyframes():
     from sclam_ros.frontend.pipeline import Keyframe
 

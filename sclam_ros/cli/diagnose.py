@@ -59,6 +59,10 @@ def format_summary(report) -> str:
                   for u in report["unexplained"]]
     else:
         lines.append("no unexplained structure")
+    for cause in report.get("unexplained_cause", [])[:1]:
+        lines.append(f"unexplained odometry structure named by {cause['regressor']} "
+                     f"({cause['fraction_explained']:.0%} of it explained)")
+    lines += [f"warning: {w}" for w in report.get("warnings", [])]
     return "\n".join(lines)
 
 

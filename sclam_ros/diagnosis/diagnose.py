@@ -18,7 +18,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import kinematics, se2
@@ -27,6 +26,10 @@ from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryF
 from sclam_ros.core.estimator import calibrate_keyframes, residual_rms
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import levenberg_marquardt, marginal_covariance, solve_with_variance_components
+from sclam_ros.diagnosis import identifiability
+from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise
+from sclam_ros.diagnosis.regressors import regressors
+from sclam_ros.diagnosis.structure import fitted_values, name_structure, residual_tests, significant
 
 ERROR_METRIC = (
     "held-out mean negative log-likelihood per edge (nats, constant dropped) of the "
@@ -37,21 +40,12 @@ ERROR_METRIC = (
 )
 
 CAUCHY_C = 3.0
-# Effects tried by default: the whole library. scan_distortion used to be a common scale
-# (1 + c) of all scan matches, confounded with the wheel radii (c = −6.5 % on a run
-# without distortion); it now models a moving sweep by terms the radii cannot mimic and
-# stays unselected on runs without a sweep (simulated 90 s runs, none, 20 ms clock offset,
-# lateral slip: held-out gain −0.017, −0.050, −0.063 nats/edge, likelihood ratio ≤ 2.5
-# against a BIC penalty of 23.6).
-DEFAULT_CANDIDATES = ("time_offset", "lateral_slip", "radius_drift", "floor_noise",
-                      "scan_distortion")
+# Effects tried by default: the whole library. scan_distortion models a moving sweep by
+# terms the radii cannot mimic and stays unselected on runs without a sweep (simulated
+# 90 s runs, none, 20 ms clock offset, lateral slip: held-out gain −0.017, −0.050,
+# −0.063 nats/edge, likelihood ratio ≤ 2.5 against a BIC penalty of 23.6).
+DEFAULT_CANDIDATES = tuple(LIBRARY)
 FOLDS = 5
-# Residual-regressor dependence counts as structure when its correlation is this
-# strong and significant after a Bonferroni correction over all tests at this level.
-MIN_STRENGTH = 0.2
-ALPHA = 0.01
-LJUNG_BOX_LAGS = 10
-RESIDUAL_CLIP = 3.0  # whitened σ
 
 
 @dataclass
@@ -85,94 +79,6 @@ def paired_edges(inputs) -> Edges:
             las.append(m)
     odo, las = np.array(odo, int), np.array(las, int)
     return Edges(odo, las, inputs.odo_from[odo], inputs.odo_from[odo] + 1)
-
-
-def regressors(inputs, data: EffectData, wheel_angles, k, poses) -> dict:
-    """Candidate explanations per odometry edge, name -> (m_o,) array."""
-    i, j = inputs.odo_from, inputs.odo_from + 1
-    t = data.stamps
-    dt = np.maximum(t[j] - t[i], 1e-3)
-    s, theta = kinematics.arc_length_and_rotation(inputs.odo_dphi, k)
-    v, w = s / dt, theta / dt
-    mid = 0.5 * (t[i] + t[j])
-    order = np.argsort(mid)
-    accel = np.zeros_like(v)
-    alpha = np.zeros_like(w)
-    if len(v) > 2:
-        accel[order] = np.gradient(v[order], mid[order])
-        alpha[order] = np.gradient(w[order], mid[order])
-    r = np.asarray(k, float)
-    body_w = (data.wheel_speeds[:, 1] * r[1] - data.wheel_speeds[:, 0] * r[0]) / r[2]
-    pos = 0.5 * (poses[i, :2] + poses[j, :2])
-    return {
-        "v": v,
-        "omega": w,
-        "abs_omega": np.abs(w),
-        "v_times_omega": v * w,
-        "acceleration": accel,
-        "angular_acceleration": alpha,
-        "wheel_speed_change": body_w[j] - body_w[i],  # what an encoder/laser clock offset scales
-        "time": mid - t[0],
-        "distance": np.cumsum(np.abs(s)),
-        "x": pos[:, 0],
-        "y": pos[:, 1],
-        # A radius varying once per wheel revolution, r·(1 + a·sin(φ + c)), changes an
-        # edge's wheel rotation by ≈ a·(cos(φ_j + c) − cos(φ_i + c)): a combination of these
-        # two differences per wheel, whatever the (unknown) phase c.
-        "wheel_angle_left": np.sin(wheel_angles[j, 0]) - np.sin(wheel_angles[i, 0]),
-        "wheel_angle_left_cos": np.cos(wheel_angles[j, 0]) - np.cos(wheel_angles[i, 0]),
-        "wheel_angle_right": np.sin(wheel_angles[j, 1]) - np.sin(wheel_angles[i, 1]),
-        "wheel_angle_right_cos": np.cos(wheel_angles[j, 1]) - np.cos(wheel_angles[i, 1]),
-        "speed_squared": v * np.abs(v),  # forward slip growing with speed
-    }
-
-
-def ljung_box(series, lags=LJUNG_BOX_LAGS):
-    """(Q, p) of the Ljung-Box test of no autocorrelation up to `lags`."""
-    x = np.asarray(series, float) - np.mean(series)
-    n = len(x)
-    lags = min(lags, n // 4)
-    denom = float(np.dot(x, x))
-    if lags < 1 or denom <= 0:
-        return 0.0, 1.0
-    rho = np.array([np.dot(x[:-h], x[h:]) / denom for h in range(1, lags + 1)])
-    q = n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1)))
-    return float(q), float(stats.chi2.sf(q, lags))
-
-
-def residual_tests(residuals: dict, regs: dict, edge_of: dict) -> list:
-    """Dependence of every residual component on every regressor, and whiteness.
-
-    residuals: component name -> (m,) values; edge_of: component name -> (m,) index into
-    the regressor arrays. Strength is |Pearson r| of the whitened residual, clipped at ±3σ
-    so an odd failed scan match cannot dominate, with its two-sided p-value. (Not a rank
-    correlation: most edges drive straight, and ranking their near-zero ω by its noise
-    showed |ρ| ≈ 0.5 "structure" on simulated runs with no effect at all.) Whiteness:
-    Ljung-Box over the first 10 lags (regressor "lag").
-    """
-    out = []
-    for comp, res in residuals.items():
-        idx = edge_of[comp]
-        for name, reg in regs.items():
-            x = reg[idx]
-            if np.ptp(x) == 0 or len(x) < 10:
-                continue
-            rho, p = stats.pearsonr(x, np.clip(res, -RESIDUAL_CLIP, RESIDUAL_CLIP))
-            if np.isfinite(rho):
-                out.append({"component": comp, "regressor": name, "strength": float(abs(rho)),
-                            "p_value": float(p)})
-        q, p = ljung_box(res)
-        n = len(res)
-        out.append({"component": comp, "regressor": "lag", "strength": float(
-            np.sqrt(q / max(n, 1))), "p_value": p})
-    return out
-
-
-def significant(tests: list) -> list:
-    threshold = ALPHA / max(len(tests), 1)
-    keep = [t for t in tests if t["p_value"] < threshold
-            and (t["regressor"] == "lag" or t["strength"] >= MIN_STRENGTH)]
-    return sorted(keep, key=lambda t: -t["strength"])
 
 
 # --- fitting ----------------------------------------------------------------------------
@@ -268,18 +174,19 @@ def disagreement(fit: Fit, effects, inputs, edges: Edges, odo_cov) -> Disagreeme
                         d_z @ cov_z @ np.swapaxes(d_z, 1, 2))
 
 
-def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=None):
-    """Per-edge negative log-likelihood of the laser-vs-odometry disagreement."""
+def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=()):
+    """Per-edge negative log-likelihood of the laser-vs-odometry disagreement, the
+    odometry covariance scaled by the fitted noise effects `noise`."""
     dis = disagreement(fit, effects, inputs, edges, odo_cov)
-    return dis.nll(1.0 if noise is None else noise.scale_of(edges.pose_i, edges.pose_j))
+    return dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
 
 
-def _fit_noise(effect, fit: Fit, mech, inputs, edges: Edges, odo_cov):
-    """Fit a noise effect to the disagreement of `edges` under `fit`; the NLL before and
-    after (per edge)."""
+def _fit_noise(noise, fit: Fit, mech, inputs, edges: Edges, odo_cov):
+    """Fit the noise effects to the disagreement of `edges` under `fit`; the NLL before
+    and after (per edge)."""
     dis = disagreement(fit, mech, inputs, edges, odo_cov)
-    effect.fit(edges.pose_i, edges.pose_j, dis.nll)
-    return dis.nll(), dis.nll(effect.scale_of(edges.pose_i, edges.pose_j))
+    fit_noise(noise, edges.pose_i, edges.pose_j, dis.nll)
+    return dis.nll(), dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
 
 
 # --- models: a set of effects, fitted on the whole run and on the folds --------------------
@@ -308,6 +215,8 @@ class _Models:
     odo_cov: np.ndarray
     base: Fit
     folds: list
+    regs: dict = field(default_factory=dict)
+    edge_reg: np.ndarray = None
     whole: dict = field(default_factory=dict)
     heldout: dict = field(default_factory=dict)
 
@@ -315,23 +224,30 @@ class _Models:
         return [LIBRARY[n](self.data) for n in names]
 
     def split_effects(self, names):
-        """(mechanical effects, the noise effect or None), fresh instances of `names`."""
+        """(mechanical effects, noise effects), fresh instances of `names`."""
         effects = self.effects(names)
-        return ([e for e in effects if e.kind != "noise"],
-                next((e for e in effects if e.kind == "noise"), None))
+        return ([e for e in effects if e.kind != "noise"], [e for e in effects if e.kind == "noise"])
 
     def fit_whole(self, names):
-        """(Fit of the mechanical effects, fitted noise effect or None, whole-run cost)."""
+        """(Fit of the mechanical effects, fitted noise effects, whole-run cost)."""
         key = tuple(names)
         if key not in self.whole:
             mech, noise = self.split_effects(names)
             fit = _fit_effects(self.base, mech) if mech else self.base
             cost = fit.cost
-            if noise is not None:  # 2·ΔNLL: the same scale as the graph's χ²-type cost
+            if noise:  # 2·ΔNLL: the same scale as the graph's χ²-type cost
                 before, after = _fit_noise(noise, fit, mech, self.inputs, self.edges, self.odo_cov)
                 cost -= 2.0 * float(np.sum(before - after))
             self.whole[key] = (fit, noise, cost)
         return self.whole[key]
+
+    def mean_structure(self, names) -> list:
+        """Significant dependence of the residuals' mean on a regressor (autocorrelation
+        aside) left by the mechanical effects of `names`, fitted on the whole run."""
+        fit = self.fit_whole(names)[0]
+        residuals = _component_residuals(fit.problem, fit.values, self.edges)
+        tests = residual_tests(residuals, self.regs, {c: self.edge_reg for c in residuals})
+        return [t for t in significant(tests) if t["regressor"] != "lag"]
 
     def heldout_nll(self, names):
         """Per-edge NLL of every held-out block, concatenated in fold order."""
@@ -339,9 +255,9 @@ class _Models:
         if key not in self.heldout:
             per_fold = []
             for fold in self.folds:
-                mech, noise = self.split_effects(names)  # a noise effect is fitted per fold
+                mech, noise = self.split_effects(names)  # noise effects are fitted per fold
                 fit = _fit_effects(fold.train, mech) if mech else fold.train
-                if noise is not None:
+                if noise:
                     _fit_noise(noise, fit, mech, self.inputs, fold.train_edges, self.odo_cov)
                 per_fold.append(edge_nll(fit, mech, self.inputs, fold.test, self.odo_cov, noise))
             self.heldout[key] = np.concatenate(per_fold)
@@ -364,24 +280,40 @@ def _time_block_folds(inputs, edges, base, params, nominal, observability, folds
 
 
 def _evaluate(models: _Models, selected, name, n_edges) -> dict:
-    """Evidence for adding effect `name` to the `selected` ones."""
+    """Evidence for adding effect `name` to the `selected` ones: held-out gain, likelihood
+    ratio against the BIC penalty, and whether the recording can tell it apart from them
+    (identifiability). It passes only with all three."""
     fit, noise, cost = models.fit_whole(selected + [name])
     cost_before = models.fit_whole(selected)[2]
     gain = models.heldout_nll(selected) - models.heldout_nll(selected + [name])
-    dim = models.effects([name])[0].dim
+    candidate = next((e for e in noise if e.name == name), None) or models.effects([name])[0]
     lr = float(cost_before - cost)
-    bic = dim * np.log(n_edges)
+    bic = candidate.dim * np.log(n_edges)
     value, sigma, params = _effect_value(models, fit, noise, name)
+    ident = identifiability.check(candidate, models.effects(selected), fit, noise, models.edges)
+    evidence_passes = bool(gain.mean() > 0 and lr > bic)
+    # A variance model fitted over an unexplained mean takes the mean's squared error for
+    # noise (a radius growing with speed passed for noise growing with the turn rate), so
+    # noise effects wait until no mean structure is left.
+    blocked = []
+    if candidate.kind == "noise":
+        blocked = [f"{t['component']} vs {t['regressor']}"
+                   for t in models.mean_structure([n for n in selected
+                                                   if LIBRARY[n].kind != "noise"])]
     return {"name": name, "value": value, "sigma": sigma, "params": params,
             "added_to": list(selected), "gain": gain, "lr": lr, "bic": float(bic),
             "heldout_error": float(np.mean(models.heldout_nll(selected + [name]))),
-            "passes": bool(gain.mean() > 0 and lr > bic)}
+            "identifiability": ident, "evidence_passes": evidence_passes,
+            "blocked_by_mean_structure": blocked,
+            "describe": next((e.describe() for e in noise if e.name == name), {}),
+            "passes": evidence_passes and identifiability.separable(ident) and not blocked}
 
 
 def _effect_value(models: _Models, fit: Fit, noise, name):
     """(reported value, its σ, the parameter vector) of effect `name` in a fit."""
-    if noise is not None and noise.name == name:
-        return noise.value(), None, None
+    fitted = next((e for e in noise if e.name == name), None)
+    if fitted is not None:
+        return fitted.value(), None, None
     effect = LIBRARY[name](models.data)
     p = fit.values[name][0]
     cov = marginal_covariance(fit.problem, fit.values, [name])
@@ -391,30 +323,48 @@ def _effect_value(models: _Models, fit: Fit, noise, name):
 
 def _stepwise_selection(models: _Models, names, n_edges, say):
     """Stepwise selection. Each round, every remaining effect is fitted on top of the ones
-    selected so far, and one of those that pass (held-out gain > 0 and likelihood ratio >
-    BIC penalty) joins: the simplest of those whose held-out error is within one standard
-    error of the best's (the one-standard-error rule). Then each earlier selected effect is
-    tried on top of the others, and leaves for good if it no longer passes: an effect that
-    a later, larger one contains (a clock offset in scan_distortion's delay) must not stay
-    to share its parameter with it. Trying effects on top of the selected ones, not only
-    against the base model, lets an effect whose signature is buried under a larger one
-    show, and keeps one that only re-explains a selected one out.
+    selected so far, and one of those that pass (held-out gain > 0, likelihood ratio >
+    BIC penalty, determined together with the selected ones) joins: the simplest of those
+    whose held-out error is within one standard error of the best's (the one-standard-
+    error rule). Then each earlier selected effect is tried on top of the others, and
+    leaves for good if it no longer passes. Trying effects on top of the selected ones,
+    not only against the base model, lets an effect whose signature is buried under a
+    larger one show, and keeps one that only re-explains a selected one out.
 
-    Returns the selected names and, per effect, the evidence of the last time it was tried.
+    When none passes, an effect that has the evidence but cannot be told apart from
+    selected ones (identifiability) may replace them, if the model with it instead has
+    the lower held-out error: a clock offset selected first gives way to a sweep's
+    delay with its turn-rate shift, never both. Every pair of a candidate and a selected
+    effect that the recording cannot separate is returned, whether or not the candidate
+    had the evidence.
+
+    Returns the selected names, per effect the evidence of the last time it was tried,
+    and the pairs the recording cannot separate.
     """
-    selected, evidence = [], {}
+    selected, evidence, pairs = [], {}, []
     remaining = list(names)
     while remaining:
         say("trying " + ", ".join(remaining) + (" on top of " + ", ".join(selected)
                                                  if selected else ""))
         round_ = {n: _evaluate(models, selected, n, n_edges) for n in remaining}
         evidence.update(round_)
+        pairs += [{"effects": sorted([n, other]),
+                   "correlation": round_[n]["identifiability"]["correlations"][other]}
+                  for n in remaining for other in _entangled(round_[n])]
         passing = [n for n in remaining if round_[n]["passes"]]
-        if not passing:
-            break
-        chosen = _simplest_near_best(models, selected, passing, round_)
-        selected.append(chosen)
-        remaining.remove(chosen)
+        if passing:
+            chosen = _simplest_near_best(models, selected, passing, round_)
+            selected.append(chosen)
+            remaining.remove(chosen)
+        else:
+            swap = _best_swap(models, selected, remaining, round_, n_edges)
+            if swap is None:
+                break
+            chosen, replaced, ev = swap
+            say(f"{chosen} replaces {', '.join(replaced)}: not separable, lower held-out error")
+            evidence[chosen] = ev
+            selected = [n for n in selected if n not in replaced] + [chosen]
+            remaining.remove(chosen)
         for earlier in selected[:-1]:
             others = [n for n in selected if n != earlier]
             again = _evaluate(models, others, earlier, n_edges)
@@ -422,7 +372,40 @@ def _stepwise_selection(models: _Models, names, n_edges, say):
                 say(f"dropping {earlier}: no longer adds to " + ", ".join(others))
                 evidence[earlier] = again
                 selected.remove(earlier)
-    return selected, evidence
+    return selected, evidence, _unique_pairs(pairs, selected)
+
+
+def _entangled(ev) -> list:
+    """The selected effects an evaluated candidate cannot be told apart from."""
+    return [n for n, c in ev["identifiability"]["correlations"].items()
+            if c > identifiability.MAX_CORRELATION]
+
+
+def _best_swap(models: _Models, selected, remaining, round_, n_edges):
+    """(candidate, the selected effects it replaces, its evidence) of the best replacement
+    among candidates that have the evidence but not the identifiability, or None."""
+    current = float(np.mean(models.heldout_nll(selected)))
+    best = None
+    for name in remaining:
+        ev = round_[name]
+        tangled = _entangled(ev)
+        if not ev["evidence_passes"] or not tangled:
+            continue
+        others = [n for n in selected if n not in tangled]
+        again = _evaluate(models, others, name, n_edges)
+        error = float(np.mean(models.heldout_nll(others + [name])))
+        if again["passes"] and error < current and (best is None or error < best[3]):
+            best = (name, tangled, again, error)
+    return None if best is None else best[:3]
+
+
+def _unique_pairs(pairs, selected) -> list:
+    out = {}
+    for p in pairs:
+        key = tuple(p["effects"])
+        if key not in out or p["correlation"] > out[key]["correlation"]:
+            out[key] = {**p, "selected": [n for n in key if n in selected]}
+    return list(out.values())
 
 
 def _simplest_near_best(models: _Models, selected, passing, round_) -> str:
@@ -462,8 +445,12 @@ def _effect_json(ev: dict, selected: bool, base_error: float) -> dict:
             "likelihood_ratio": ev["lr"], "bic_penalty": ev["bic"],
             "added_to": ev["added_to"],
             "units": LIBRARY[ev["name"]].units,
+            "identifiability": ev["identifiability"],
+            **({"blocked_by_mean_structure": ev["blocked_by_mean_structure"]}
+               if ev["blocked_by_mean_structure"] else {}),
             **({"params": ev["params"]} if ev["params"] is not None else {}),
         },
+        **ev["describe"],
     }
 
 
@@ -503,9 +490,9 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
     say(f"{folds}-fold time-block cross-validation")
     models = _Models(data, inputs, edges, odo_cov, base,
                      _time_block_folds(inputs, edges, base, params, nominal,
-                                       base_result.observability, folds))
+                                       base_result.observability, folds), regs, edge_reg)
     n_edges = len(inputs.odo_from) + len(inputs.laser_from)
-    selected, evidence = _stepwise_selection(models, names, n_edges, say)
+    selected, evidence, pairs = _stepwise_selection(models, names, n_edges, say)
     base_error = float(np.mean(models.heldout_nll([])))
     ext_error = float(np.mean(models.heldout_nll(selected)))
 
@@ -519,6 +506,13 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
         effects_json.append(e)
     after = _component_residuals(ext.problem, ext.values, edges)
     tests_after = residual_tests(after, regs, edge_of)
+    motion = kinematics.forward(inputs.odo_dphi, ext.values["odometry"][0])
+    shift = identifiability.calibration_shift(base, ext, CALIBRATION_KEYS) if selected else {}
+    warnings = [f"adding {', '.join(selected)} moved {k} by {z:+.1f} σ (of the extended model)"
+                for k, z in shift.items() if abs(z) > identifiability.MAX_SHIFT_SIGMA]
+    warnings += [f"{p['effects'][0]} and {p['effects'][1]} cannot be told apart on this "
+                 f"recording (correlation {p['correlation']:.2f}); selected: "
+                 f"{', '.join(p['selected']) or 'neither'}" for p in pairs]
 
     def summary(fit, err):
         rms = residual_rms(fit.problem, fit.values)
@@ -536,6 +530,14 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
         "effects": effects_json,
         "unexplained": [{k: t[k] for k in ("component", "regressor", "strength")}
                         for t in significant(tests_after)],
+        # The regressors that explain most of what is left (over the structured
+        # components), with the fraction each explains.
+        "unexplained_cause": name_structure(
+            {c: r for c, r in after.items() if c.startswith("odometry.")}, regs, edge_reg,
+            motion),
+        "not_separable": pairs,
+        "calibration_shift_sigma": shift,
+        "warnings": warnings,
     }
     return Diagnosis(report, before, after, regs, edge_of, tests_before, tests_after)
 
@@ -564,7 +566,9 @@ def write_diagnosis_report(out_dir, diagnosis: Diagnosis, per_figure: int = 6) -
         fig, axes = plt.subplots(1, len(tests), figsize=(4.5 * len(tests), 3.6), squeeze=False)
         idx = diagnosis.edge_of[comp]
         for ax, t in zip(axes[0], tests):
-            x = diagnosis.regressors[t["regressor"]][idx]
+            # A group of columns is drawn against its least-squares combination.
+            x = fitted_values(diagnosis.regressors[t["regressor"]][idx],
+                              diagnosis.residuals_before[comp])
             ax.plot(x, diagnosis.residuals_before[comp], ".", ms=3, alpha=0.6, label="before (base)")
             ax.plot(x, diagnosis.residuals_after[comp], ".", ms=3, alpha=0.6, label="after (extended)")
             ax.set_xlabel(t["regressor"])

@@ -219,9 +219,50 @@ class FloorNoiseRegion(Effect):
         return np.where(np.asarray(positions)[:, 0] > self.x_min, self.factor, 1.0)
 
 
+class FloorNoiseArea(Effect):
+    name = "floor_noise_area"
+    doc = (
+        "a rough floor inside a rectangle of the map (one room's carpet): an extra, "
+        "independent slip noise of σ `extra` (same unit as the recording's slip noise "
+        "`base`: fraction of a revolution after one revolution) on both wheels while the "
+        "robot is inside x_min..x_max, y_min..y_max (map frame, m)"
+    )
+    params = (("extra", 0.006, "fraction of a revolution after one revolution"),
+              ("x_min", 0.0, "m"), ("x_max", 7.0, "m"), ("y_min", 0.0, "m"), ("y_max", 6.5, "m"),
+              ("base", 0.005, "fraction of a revolution after one revolution"))
+
+    def variance_ratio(self) -> float:
+        """Slip-noise variance inside over outside: independent noises add variances."""
+        return 1.0 + (self.extra / self.base) ** 2
+
+    def inside(self, positions):
+        p = np.asarray(positions, float)
+        return ((p[..., 0] >= self.x_min) & (p[..., 0] <= self.x_max)
+                & (p[..., 1] >= self.y_min) & (p[..., 1] <= self.y_max))
+
+    def slip_noise_scale(self, positions):
+        return np.where(self.inside(positions), np.sqrt(self.variance_ratio()), 1.0)
+
+
+class SpeedDependentRadius(Effect):
+    name = "speed_dependent_radius"
+    doc = (
+        "the wheels' rolling radius grows with the robot's speed v (tyres expanding when "
+        "driven fast): r·(1 + gain·v²), the same factor on both wheels (gain in s²/m²; 0.1 "
+        "gives 3.6 % at 0.6 m/s). Unlike speed_dependent_slip the wheels turn less, and the "
+        "error scales the whole motion, turns included"
+    )
+    params = (("gain", 0.1, "s²/m²"),)
+
+    def wheel_increments(self, t, increments, twists):
+        # Ground distance fixed: a larger radius turns the wheel less.
+        v = np.asarray(twists)[:, 0]
+        return increments / (1.0 + self.gain * v**2)[:, None]
+
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls for cls in (TimeOffset, RadiusChangeAt, RadiusRamp, RadiusDrift, LateralSlip, ScanMotion,
-                              WheelEccentricity, SpeedDependentSlip, FloorNoiseRegion)
+                              WheelEccentricity, SpeedDependentSlip, FloorNoiseRegion,
+                              FloorNoiseArea, SpeedDependentRadius)
 }
 
 

@@ -121,3 +121,7 @@ class ModelEffect:
     def value(self, p) -> float:
         """The one number reported for the effect (its first parameter by default)."""
         return float(np.asarray(p).ravel()[0])
+
+    def describe(self) -> dict:
+        """Further fields for the report (a noise region's place), none by default."""
+        return {}

@@ -1,0 +1,156 @@
+"""`sclam diagnose` on simulated recordings with known effects, several seeds each
+(docs/diagnose.md).
+
+Scenarios (PowerBot, office world, --duration s unless said):
+
+  carpet        one room's carpet: extra slip noise of 0.6 % of a revolution (independent
+                of the 0.5 % everywhere: variance ratio 2.44) inside room n1 (world
+                x 0-11 m, y 9-16 m). Correct: floor_noise selected (and nothing else).
+                Region overlap: time inside the found rectangle ∩ inside the room over
+                their union, on the true trajectory; size error: variance ratio vs 2.44.
+  speed_radius  each wheel's radius grows with its own speed, r·(1 + 0.1·u²) (not in
+                the library). Correct: no library effect selected, and the regressor
+                named first for what is unexplained is the speed (v, |v| or v·|v|).
+  clean         no effect. Correct: nothing selected.
+  time_offset, lateral_slip, scan_motion: the library's mean effects (20 ms, 0.05 s, a
+                10 Hz laser sweeping its whole period), 90 s. Correct: exactly that
+                effect (scan_distortion for scan_motion) selected.
+
+A false selection is a selected effect other than the correct one. Top regressor: the
+most frequent first entry of `unexplained_cause` over the seeds (with how many seeds).
+
+Run: .venv/bin/python bench/diagnose_effects.py [--seeds 5] [--duration 180]
+     [--scenarios carpet,speed_radius,clean,...] [--jobs 1]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import table  # noqa: E402
+
+ROOM = {"x_min": 0.0, "x_max": 11.0, "y_min": 9.0, "y_max": 16.0}  # room n1 of the office
+EXTRA_SLIP = 0.006  # fraction of a revolution after one revolution
+SPEED_REGRESSORS = ("v", "abs_v", "v_squared")
+# name: (simulator effects, the library effect that should be selected, duration or None)
+SCENARIOS = {
+    "carpet": ({"floor_noise_area": {"extra": EXTRA_SLIP, **ROOM}}, "floor_noise", None),
+    "speed_radius": ({"speed_dependent_radius": 0.1}, None, None),
+    "clean": (None, None, None),
+    "time_offset": ({"time_offset": 0.02}, "time_offset", 90.0),
+    "lateral_slip": ({"lateral_slip": 0.05}, "lateral_slip", 90.0),
+    "scan_motion": ({"scan_motion": 1.0}, "scan_distortion", 90.0),
+}
+
+
+def _world_positions(bag, truth):
+    """Ground-truth (stamps, odom-frame xy, world xy) of the recording."""
+    from sclam_ros.io.recording import read_ground_truth
+
+    stamps, poses = read_ground_truth(bag)
+    o = np.array(truth["odom_origin_in_world"])
+    c, s = np.cos(o[2]), np.sin(o[2])
+    world = np.column_stack([o[0] + c * poses[:, 0] - s * poses[:, 1],
+                             o[1] + s * poses[:, 0] + c * poses[:, 1]])
+    return stamps, poses[:, :2], world
+
+
+def _in_region(xy, region):
+    """Points inside the found rectangle (its sides along the map's axes)."""
+    a = np.radians(region["angle_deg"])
+    u = np.cos(a) * xy[:, 0] + np.sin(a) * xy[:, 1]
+    v = -np.sin(a) * xy[:, 0] + np.cos(a) * xy[:, 1]
+    return ((u >= region["along"][0]) & (u <= region["along"][1])
+            & (v >= region["across"][0]) & (v <= region["across"][1]))
+
+
+def run_case(scenario, seed, duration, workdir):
+    from sclam_ros.core.params import SclamParams
+    from sclam_ros.diagnosis.diagnose import diagnose_keyframes
+    from sclam_ros.io.recording import read_recording
+    from sclam_ros.sim import simulate
+    from sclam_ros.sim.effects import make_effect
+
+    effects, expected, fixed = SCENARIOS[scenario]
+    duration = fixed or duration
+    bag = Path(workdir) / f"{scenario}_{seed}"
+    truth = simulate(bag, duration=duration, seed=seed, effects=effects, overwrite=True)
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    start = time.perf_counter()
+    keyframes = read_recording(bag, params).keyframes
+    read_s = time.perf_counter() - start
+    report = diagnose_keyframes(keyframes, params).report
+    out = {"scenario": scenario, "seed": seed, "duration": duration,
+           "seconds": time.perf_counter() - start, "read_seconds": read_s,
+           "selected": [e["name"] for e in report["effects"] if e["selected"]],
+           "cause": (report["unexplained_cause"] or [{}])[0].get("regressor"),
+           "cause_fraction": (report["unexplained_cause"] or [{}])[0].get("fraction_explained"),
+           "not_separable": report["not_separable"], "warnings": report["warnings"]}
+    out["correct"] = out["selected"] == ([expected] if expected else [])
+    if scenario == "speed_radius":
+        out["correct"] = out["correct"] and out["cause"] in SPEED_REGRESSORS
+    floor = next(e for e in report["effects"] if e["name"] == "floor_noise")
+    if scenario == "carpet" and "region" in floor:
+        _, odom_xy, world_xy = _world_positions(bag, truth)
+        true_in = ((world_xy[:, 0] >= ROOM["x_min"]) & (world_xy[:, 0] <= ROOM["x_max"])
+                   & (world_xy[:, 1] >= ROOM["y_min"]) & (world_xy[:, 1] <= ROOM["y_max"]))
+        found_in = _in_region(odom_xy, floor["region"])
+        out["overlap"] = float(np.sum(true_in & found_in) / max(np.sum(true_in | found_in), 1))
+        ratio = make_effect("floor_noise_area", effects["floor_noise_area"]).variance_ratio()
+        out["size_error"] = float(floor["value"] / ratio - 1.0)
+        out["floor_selected"] = floor["selected"]
+    return out
+
+
+def _row(scenario, results):
+    expected = SCENARIOS[scenario][1]
+    false = sum(len([n for n in r["selected"] if n != expected]) for r in results)
+    causes = Counter(r["cause"] for r in results if r["cause"])
+    top = causes.most_common(1)
+    overlaps = [r["overlap"] for r in results if "overlap" in r]
+    sizes = [r["size_error"] for r in results if "size_error" in r]
+    return [scenario, len(results), f"{sum(r['correct'] for r in results)}/{len(results)}",
+            (f"{min(overlaps):.2f}–{max(overlaps):.2f}" if overlaps else "–"),
+            (f"{min(sizes):+.0%}…{max(sizes):+.0%}" if sizes else "–"), false,
+            (f"{top[0][0]} ({top[0][1]}/{len(results)})" if top else "–"),
+            f"{np.median([r['seconds'] for r in results]):.0f}"]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--first-seed", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=180.0)
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS))
+    ap.add_argument("--jobs", type=int, default=1)
+    args = ap.parse_args()
+    names = [n.strip() for n in args.scenarios.split(",")]
+    work = tempfile.mkdtemp(prefix="sclam_diagnose_bench_")
+    cases = [(n, s) for n in names for s in range(args.first_seed, args.first_seed + args.seeds)]
+    results = {n: [] for n in names}
+    with ProcessPoolExecutor(args.jobs) as pool:
+        futures = [pool.submit(run_case, n, s, args.duration, work) for n, s in cases]
+        for (n, s), f in zip(cases, futures):
+            r = f.result()
+            results[n].append(r)
+            extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error") if k in r)
+            print(f"{n} seed {s}: selected {r['selected'] or 'none'}, cause {r['cause']} "
+                  f"({r['cause_fraction'] or 0:.2f}){extra}, not separable "
+                  f"{[p['effects'] for p in r['not_separable']]}, {r['seconds']:.0f} s", flush=True)
+    print(f"\n{args.seeds} seeds from {args.first_seed}, {args.duration:.0f} s "
+          "(90 s for the library's mean effects)")
+    print(table([_row(n, results[n]) for n in names],
+                ["scenario", "seeds", "selected correctly", "region overlap", "size error",
+                 "false selections", "top regressor", "s per run"]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,30 @@
+"""Maximum-likelihood factors on the odometry covariance, shared by the noise effects.
+
+A noise effect changes the noise model, not the mean: it multiplies each edge's odometry
+covariance by a factor. It is fitted to the laser-vs-odometry disagreements of a fit,
+whose covariance is factor·(odometry part) + (scan-match part), through a function
+nll(factors (m,)) -> per-edge negative log-likelihood (m,) (diagnose.Disagreement.nll).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+LOG_RANGE = np.log(100.0)  # factors searched within [1/100, 100]
+
+
+def ml_factor(nll, inside) -> float:
+    """The one factor on the odometry covariance of the `inside` edges minimising their NLL."""
+    def region_nll(log_factor):
+        factors = np.ones(len(inside))
+        factors[inside] = np.exp(log_factor)
+        return float(np.sum(nll(factors)[inside]))
+
+    best = minimize_scalar(region_nll, bounds=(-LOG_RANGE, LOG_RANGE), method="bounded",
+                           options={"xatol": 1e-4})
+    return float(np.exp(best.x))
+
+
+def nll_profile(nll, m, log_factors) -> np.ndarray:
+    """(m, G) per-edge NLL at each of the G common factors exp(log_factors)."""
+    return np.column_stack([nll(np.full(m, np.exp(g))) for g in log_factors])
