@@ -1,7 +1,7 @@
 """Load changes tracked by the online calibrator (the code path of `sclam calibrate --track`
 and of sclam_node), against the simulator's truth.
 
-Scenarios (PowerBot in the office, default 100 m radii window, --seeds seeds each):
+Scenarios (PowerBot in the office, default window_distance 100 m, --seeds seeds each):
   step 1 % both      both radii −1 % at 240 s (a load put on the robot), 360 s run
   step 0.5 % left    the left radius −0.5 % at 240 s (a soft tyre), 360 s run
   step back          both radii +1 % at 240 s (the load taken off), 360 s run
@@ -129,7 +129,8 @@ def main():
         rows.append([name, len(mine), delay, *radius, f"{worst('base'):.3f}",
                      f"{worst('laser_mm'):.2f}", f"{worst('laser_deg'):.3f}",
                      f"{alarms / hours:.1f}" if hours > 0 else "-"])
-    print(f"online calibrator, 100 m radii window; worst over {args.seeds} seeds per scenario")
+    print(f"online calibrator (window_distance 100 m: radii memory fading over 100 m, change "
+          f"points); worst over {args.seeds} seeds per scenario")
     print(table(rows, ["scenario", "runs", "detection delay s (median / worst)",
                        "radius error from +30 s %", "from +60 s %", "wheel base error %",
                        "laser error mm", "laser yaw error deg", "false alarms / h"]))

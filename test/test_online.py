@@ -13,6 +13,8 @@ from sclam_ros.io.recording import read_recording
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 from sclam_ros.io.recording import iter_keyframes
+from sclam_ros.core.marginal import NOT_RADII, RADII, Gaussian
+from sclam_ros.online.change import change_point, fade_radii
 from sclam_ros.online.window import POSE_WINDOW_DISTANCE, KeyframeMerger, OnlineCalibrator
 
 DURATION = 200.0
@@ -102,3 +104,94 @@ def test_incremental_merge_equals_the_batch_merge(load_change):
         if a.laser_motion is not None:
             np.testing.assert_allclose(a.laser_motion, b.laser_motion)
             np.testing.assert_allclose(a.laser_information, b.laser_information)
+
+
+def test_wheel_base_not_moved_by_the_load_change(load_change):
+    """The wheel base did not change: after the radii did, its estimate stays within 3σ
+    (its σ just before the change) of where it was, i.e. no more than fresh data of an
+    unchanged robot could move it (the update of a consistent estimate has a spread below
+    its prior σ)."""
+    _, truth, rows = load_change
+    t = np.array([float(r["t"]) for r in rows]) - truth["start_time"]
+    base = np.array([float(r["wheel_base"]) for r in rows])
+    sigma = np.array([float(r["sigma_wheel_base"]) for r in rows])
+    before = np.flatnonzero(t < CHANGE_AT)[-1]
+    after = t >= CHANGE_AT
+    assert np.max(np.abs(base[after] - base[before])) < 3 * sigma[before]
+    # ... and it stays consistent with the truth.
+    assert np.all(np.abs(base[after] - truth["wheel_base"]) < 3 * sigma[after])
+
+
+def test_no_change_detected_on_a_clean_recording(tmp_path):
+    """Three minutes of an unchanged robot: the change test never fires."""
+    bag = tmp_path / "clean"
+    simulate(bag, robot="powerbot", duration=180.0, seed=5)
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    calibrator = OnlineCalibrator(params)
+    calibrator.add_keyframes(iter_keyframes(bag, params, calibrator.frontend))
+    assert calibrator.solves > 100 and calibrator.radius_changes == 0
+
+
+def _gaussian(rng, mean, strength=1e4):
+    """A random proper Gaussian on the calibration, informative in every direction."""
+    a = rng.standard_normal((6, 6))
+    information = strength * (a @ a.T + 6 * np.eye(6))
+    return Gaussian(information, information @ mean)
+
+
+def _covariance(gaussian):
+    return np.linalg.inv(gaussian.information)
+
+
+def test_fading_keeps_the_wheel_base_and_laser_marginal():
+    rng = np.random.default_rng(4)
+    mean = np.array([0.1, 0.1, 0.5, 0.2, 0.0, 0.01])
+    g = _gaussian(rng, mean)
+    for factor in (0.9, 0.3, 0.01):
+        faded = fade_radii(g, factor)
+        # The (b, l) marginal is the same; the radii given (b, l) are less certain.
+        np.testing.assert_allclose(_covariance(faded)[np.ix_(NOT_RADII, NOT_RADII)],
+                                   _covariance(g)[np.ix_(NOT_RADII, NOT_RADII)], rtol=1e-8)
+        np.testing.assert_allclose(faded.mean(), mean, rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(faded.information[np.ix_(RADII, RADII)],
+                                   factor * g.information[np.ix_(RADII, RADII)])
+    # Faded to nothing, it is the radii integrated out.
+    gone = fade_radii(g, 0.0)
+    np.testing.assert_allclose(gone.information, g.without_radii().information, atol=1e-6)
+    np.testing.assert_allclose(gone.eta, g.without_radii().eta, atol=1e-6)
+
+
+def _chunks(rng, radii_at, n=12, metres=5.0, sigma_radius=2e-4):
+    """n chunk Gaussians of noisy unit data: chunk i measures radii_at(i) and a fixed
+    (b, l), each informative about radii and base together (as turns and straights are)."""
+    truth_rest = np.array([0.56, 0.22, 0.0, 0.001])
+    units = []
+    for i in range(n):
+        mean = np.concatenate([radii_at(i), truth_rest])
+        jac = np.eye(6) + 0.3 * rng.standard_normal((6, 6))
+        sigma = np.array([sigma_radius, sigma_radius, 1e-3, 1e-3, 1e-3, 1e-3])
+        observed = jac @ mean + sigma * rng.standard_normal(6)
+        weight = jac.T / sigma**2
+        units.append(Gaussian(weight @ jac, weight @ observed))
+    return units, [metres] * n
+
+
+def test_change_point_finds_a_step_where_it_is():
+    rng = np.random.default_rng(8)
+    scale = np.array([0.03, 0.03, 0.14, 1.0, 1.0, 0.1])
+    step = np.array([0.125, 0.125]) * 0.995  # 0.5 % at chunk 7
+    units, metres = _chunks(rng, lambda i: step if i >= 7 else np.array([0.125, 0.125]))
+    found = change_point(units, metres, 100.0, Gaussian(), scale)
+    assert found.boundary == 7 and found.statistic > 30
+
+
+def test_change_point_statistic_without_a_change_is_small():
+    """Without a change the largest ratio over 11 boundaries stays below the detection
+    threshold in most realisations: a χ² (2 dof) per boundary, correlated between them."""
+    rng = np.random.default_rng(9)
+    scale = np.array([0.03, 0.03, 0.14, 1.0, 1.0, 0.1])
+    statistics = [change_point(*_chunks(rng, lambda i: np.array([0.125, 0.125])), 1e9,
+                               Gaussian(), scale).statistic for _ in range(200)]
+    # max of 11 χ²(2): median ≈ 2 ln(11 / ln 2) ≈ 5.5; tail: P(> 13.8) ≤ 11 · e^(−6.9) ≈ 1 %.
+    assert 2.0 < np.median(statistics) < 9.0
+    assert np.mean(np.array(statistics) > 13.8) < 0.03

@@ -31,6 +31,7 @@ import queue
 import threading
 import time
 from collections import Counter
+from dataclasses import replace
 from typing import Callable, Optional
 
 from sclam_ros.core.inputs import Rejections
@@ -218,6 +219,10 @@ class CalibratorProcess:
                 continue
             if epoch < self._epoch:
                 continue  # sent before the child saw the newest command
+            if kind == "status" and status.solves == self.status.solves:
+                # No solve since the last message: the estimate is the one already handed
+                # out (an unpickled copy otherwise; callers may compare by identity).
+                status = replace(status, estimate=self.status.estimate)
             self.status = status
             self.rejections = Rejections(Counter(counts))
             if kind == "estimate":

@@ -1,0 +1,112 @@
+"""The radii's change model: fading memory for slow drift, change points for steps.
+
+The marginalised data of the online window is a sequence of Gaussians on the calibration
+(r_l, r_r, b, l_x, l_y, l_yaw; core/marginal.py), oldest first, the last one being the
+pose window's own information. The wheel base and the laser pose are the same in all of
+them; the radii are piecewise constant (a load put on or taken off, a tyre losing air at
+once) and drift slowly in between (wear, a slow leak).
+
+- Drift: as data ages by `m` metres, the information it carries about the radii *given*
+  (b, l) is scaled by exp(−m / L): what it says about (b, l) is kept in full (fade_radii).
+  L = window_distance, so the radii come from about the last window_distance metres, as
+  in a sliding window, while the wheel base and the laser keep all their information:
+  the radii of different times are tied together, not integrated out chunk by chunk.
+- Steps: a generalised likelihood-ratio test (change_point) for "the radii changed
+  between unit k and k+1" against "no change", at every boundary, maximised over k. With a
+  change found, everything before it is one segment whose radii are integrated out jointly
+  (its (b, l) information kept for good); the data after it, marginalised chunks included,
+  stays a prior on the new radii. The change time is where the test puts it, not where it
+  was detected, so data between a change and its detection informs the new radii and never
+  the old ones.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sclam_ros.core.marginal import NOT_RADII, RADII, Gaussian
+
+
+def fade_radii(gaussian: Gaussian, factor: float) -> Gaussian:
+    """The Gaussian with the information on the radii given (b, l) scaled by `factor`
+    (0: the radii integrated out, Gaussian.without_radii; 1: unchanged); the marginal on
+    (b, l) is unchanged whatever the factor.
+
+    p(r, s) = p(r | s) p(s): the conditional's information [[Λrr, Λrs], [Λsr, Λsr Λrr⁺ Λrs]]
+    and vector [ηr, Λsr Λrr⁺ ηr] are scaled, the marginal's (Λss − Λsr Λrr⁺ Λrs,
+    ηs − Λsr Λrr⁺ ηr) kept."""
+    if factor >= 1.0:
+        return gaussian
+    info, eta = gaussian.information, gaussian.eta
+    l_rr = info[np.ix_(RADII, RADII)]
+    l_sr = info[np.ix_(NOT_RADII, RADII)]
+    coupling = l_sr @ np.linalg.pinv(l_rr, hermitian=True)  # Λsr Λrr⁺
+    out = Gaussian(info.copy(), eta.copy())
+    out.information[np.ix_(RADII, RADII)] *= factor
+    out.information[np.ix_(RADII, NOT_RADII)] *= factor
+    out.information[np.ix_(NOT_RADII, RADII)] *= factor
+    out.information[np.ix_(NOT_RADII, NOT_RADII)] -= (1.0 - factor) * coupling @ l_sr.T
+    out.eta[RADII] *= factor
+    out.eta[NOT_RADII] -= (1.0 - factor) * coupling @ eta[RADII]
+    return out
+
+
+def faded_sum(gaussians, metres, fading_length: float, start: Gaussian = None) -> Gaussian:
+    """Σ of `gaussians` (oldest first, each `metres` long) with the older ones' radii faded
+    by the metres driven after them; `start`: an older Gaussian to continue from."""
+    total = start if start is not None else Gaussian()
+    for gaussian, length in zip(gaussians, metres):
+        total = fade_radii(total, float(np.exp(-length / fading_length))) + gaussian
+    return total
+
+
+@dataclass(frozen=True)
+class ChangePoint:
+    statistic: float  # the likelihood ratio 2 (ℓ_change − ℓ_none), maximised over boundaries
+    boundary: int  # the best boundary: the change lies between unit boundary-1 and boundary
+
+
+def _max_log_likelihood(information, eta, scale) -> float:
+    """max_x (ηᵀx − ½ xᵀΛx) = ½ ηᵀΛ⁻¹η, in variables whitened by `scale`."""
+    info = information * np.outer(scale, scale)
+    vec = eta * scale
+    return 0.5 * float(vec @ np.linalg.lstsq(info, vec, rcond=1e-12)[0])
+
+
+def change_point(units, metres, fading_length, reference: Gaussian, scale,
+                 first_boundary: int = 1) -> ChangePoint:
+    """The likelihood-ratio test for one change of the radii among `units`.
+
+    `units`: Gaussians oldest first (each also carrying its share of any weak prior that
+    makes the sums proper); `reference`: what precedes them (faded in as the oldest data);
+    `scale`: (6,) a σ per parameter to whiten by (the prior's). For a boundary k the
+    model "radii r_a before, r_b from unit k on, (b, l) shared" is an 8-dimensional
+    Gaussian; its best log-likelihood against the shared model's is a χ² with 2 degrees of
+    freedom at a boundary fixed in advance (larger when maximised over boundaries)."""
+    before = [reference]
+    for unit, length in zip(units, metres):
+        before.append(fade_radii(before[-1], float(np.exp(-length / fading_length))) + unit)
+    after = [Gaussian()] * (len(units) + 1)
+    for k in range(len(units) - 1, -1, -1):
+        after[k] = after[k + 1] + units[k]
+    scale = np.asarray(scale, float)
+    scale8 = np.concatenate([scale, scale[RADII]])
+    best = ChangePoint(0.0, -1)
+    for k in range(max(first_boundary, 1), len(units)):
+        # The same pieces under both models: only whether they share the radii differs.
+        a, b = before[k], after[k]
+        none = _max_log_likelihood((a + b).information, (a + b).eta, scale)
+        # r_a: columns RADII, (b, l): NOT_RADII, r_b: columns 6, 7
+        info = np.zeros((8, 8))
+        eta = np.zeros(8)
+        info[:6, :6] = a.information
+        eta[:6] = a.eta
+        idx = [6, 7, *NOT_RADII]
+        src = [*RADII, *NOT_RADII]
+        info[np.ix_(idx, idx)] += b.information[np.ix_(src, src)]
+        eta[idx] += b.eta[src]
+        statistic = 2.0 * (_max_log_likelihood(info, eta, scale8) - none)
+        if statistic > best.statistic:
+            best = ChangePoint(statistic, k)
+    return best
