@@ -52,13 +52,19 @@ def fade_radii(gaussian: Gaussian, factor: float) -> Gaussian:
     return out
 
 
-def faded_sum(gaussians, metres, fading_length: float, start: Gaussian = None) -> Gaussian:
-    """Σ of `gaussians` (oldest first, each `metres` long) with the older ones' radii faded
-    by the metres driven after them; `start`: an older Gaussian to continue from."""
-    total = start if start is not None else Gaussian()
+def faded_sums(gaussians, metres, fading_length: float, start: Gaussian = None) -> list:
+    """The running sums of `gaussians` (oldest first, each `metres` long), the older ones'
+    radii faded by the metres driven after them: [start, start+g0, ...]; `start`: an older
+    Gaussian to continue from."""
+    sums = [start if start is not None else Gaussian()]
     for gaussian, length in zip(gaussians, metres):
-        total = fade_radii(total, float(np.exp(-length / fading_length))) + gaussian
-    return total
+        sums.append(fade_radii(sums[-1], float(np.exp(-length / fading_length))) + gaussian)
+    return sums
+
+
+def faded_sum(gaussians, metres, fading_length: float, start: Gaussian = None) -> Gaussian:
+    """The last of faded_sums: all of `gaussians` after `start`, radii faded by age."""
+    return faded_sums(gaussians, metres, fading_length, start)[-1]
 
 
 @dataclass(frozen=True)
@@ -84,9 +90,7 @@ def change_point(units, metres, fading_length, reference: Gaussian, scale,
     model "radii r_a before, r_b from unit k on, (b, l) shared" is an 8-dimensional
     Gaussian; its best log-likelihood against the shared model's is a χ² with 2 degrees of
     freedom at a boundary fixed in advance (larger when maximised over boundaries)."""
-    before = [reference]
-    for unit, length in zip(units, metres):
-        before.append(fade_radii(before[-1], float(np.exp(-length / fading_length))) + unit)
+    before = faded_sums(units, metres, fading_length, reference)
     after = [Gaussian()] * (len(units) + 1)
     for k in range(len(units) - 1, -1, -1):
         after[k] = after[k + 1] + units[k]

@@ -47,7 +47,7 @@ from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian, gaussian_o
 from sclam_ros.core.observability import Observability, settle_poses
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import factorize_information, levenberg_marquardt, marginal_covariance
-from sclam_ros.online.change import change_point, fade_radii, faded_sum
+from sclam_ros.online.change import change_point, faded_sum
 
 # Bound on the merged keyframes in the window (0.5 s each by default: 200 s). Reached only
 # when the robot crawls or stands still; then the oldest keyframes leave by count.
@@ -76,8 +76,6 @@ CHANGE_CONFIRMATIONS = 3
 # the start are linearised around radii still converging from nominal: against the first
 # one alone the ratio sat at 3-6 for minutes of clean driving.
 MIN_TESTED_HISTORY = 10.0
-# The radii information of old data fades by e over this fraction of window_distance.
-FADING_FRACTION = 1.0
 # A window solve stops when an LM step lowers the cost by less than this fraction, or after
 # MAX_ITERATIONS steps: with a window cost of 50-500 (χ² ≈ dof), 1e-4 is a Δχ² of
 # 0.005-0.05, a parameter step well below its σ, and the next solve, warm-started a second
@@ -229,15 +227,11 @@ class OnlineCalibrator:
     def _retire_oldest_chunk(self) -> None:
         """The oldest chunk leaves the history: it joins the older data, radii fading."""
         chunk = self.history.popleft()
-        self.older = fade_radii(self.older, self._fading(chunk.metres)) + chunk.gaussian
-
-    def _fading(self, metres) -> float:
-        """Factor on the radii information of data `metres` older (change.fade_radii)."""
-        return float(np.exp(-metres / self.fading_length()))
+        self.older = self._faded([chunk], self.older)
 
     def fading_length(self) -> float:
         """Metres over which the radii information of old data fades by e (change.py)."""
-        return FADING_FRACTION * self.params.window_distance
+        return self.params.window_distance
 
     def _faded(self, chunks, start: Gaussian) -> Gaussian:
         return faded_sum([c.gaussian for c in chunks], [c.metres for c in chunks],
