@@ -144,7 +144,7 @@ def run(data: Dataset, config: ScanMatcherConfig, use_guess=True, refine=True) -
             match = matcher.add_scan(scan, guess)
             z = None if match is None else match.z
         times.append(time.perf_counter() - start)
-        if match is None:
+        if match is None or z is None:  # z None: a match the refinement did not confirm
             continue
         z_true = se2.between(data.laser[match.index_to], data.laser[match.index_from])
         errors.append(se2.between(z, z_true))

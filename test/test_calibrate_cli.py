@@ -32,7 +32,8 @@ def test_calibrate_recovers_truth_within_sigma(recording, tmp_path, capsys):
     # A clean recording: nothing to warn about (the map warm-up is counted, not warned).
     assert result["warnings"] == [] and result["rejected"] == {"match_map_warmup": 3}
     assert all(result["observable"].values())
-    assert result["scans_used"] > 1400 and result["duration_s"] == pytest.approx(150, abs=1)
+    # 1500 scans at 10 Hz, every third matched (frontend/decimation.py).
+    assert result["scans_used"] > 450 and result["duration_s"] == pytest.approx(150, abs=1)
     for key in CALIBRATION_KEYS:
         err = result[key] - truth[key]
         sigma = result["sigma"][key]

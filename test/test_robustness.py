@@ -154,9 +154,10 @@ def test_negative_increment_is_the_same_scan(recording, tmp_path, capsys):
         assert abs(a[key] - b[key]) < 0.5 * sigma, key
 
 
-def test_refinement_without_lines_keeps_the_icp_motion():
+def test_matches_without_lines_are_counted_not_used():
     """Outdoors, no walls: the reference scan has no points on lines, ReferenceScan is None.
-    The match must come back as KISS-ICP found it, counted, instead of crashing."""
+    KISS-ICP still matches, but nothing confirms its answer: the match is counted as not
+    used (z None) instead of crashing or entering the graph unverified."""
     rng = np.random.default_rng(3)
     trees = rng.uniform(-8, 8, (400, 2))  # scattered poles: no two neighbourhoods on a line
     matcher = point_to_line.RefinedScanMatcher(ScanMatcher())
@@ -167,12 +168,24 @@ def test_refinement_without_lines_keeps_the_icp_motion():
                     angle_increment=2 * np.pi / len(trees), range_min=0.0, range_max=30.0)
         match, z = matcher.add_scan(scan, np.array([0.03, 0.0, 0.0]), points)
         matches += match is not None
+        assert z is None
     assert point_to_line.ReferenceScan.from_points(points) is None
-    assert matches > 1
-    # Every match from the scan before it (all but the first after the map's warm-up) is one
-    # the refinement had to leave alone.
-    assert matcher.unrefined["no_lines"] == matches - 1
-    assert np.allclose(z, [0.03, 0.0, 0.0], atol=0.01)
+    assert matches > 1 and matcher.matches == matches
+    assert matcher.unrefined["no_lines"] == matches
+
+
+def test_recording_whose_matches_are_all_unconfirmed_says_why(recording):
+    """When no scan match survives the point-to-line check (scans without walls), the error
+    says so instead of only "0 laser edges"."""
+    from sclam_ros.core.estimator import CalibrationError
+
+    params = SclamParams.from_yaml(recording / "params.yaml")
+    rec = read_recording(recording, params)
+    keyframes = [dataclasses.replace(kf, laser_from=None, laser_motion=None, laser_information=None)
+                 for kf in rec.keyframes]
+    rec.rejections.add("match_unconfirmed", sum(kf.laser_motion is not None for kf in rec.keyframes))
+    with pytest.raises(CalibrationError, match="too little straight structure"):
+        calibrate_keyframes(keyframes, params, rec.rejections)
 
 
 # --- a topic of the wrong type ---------------------------------------------------------

@@ -196,7 +196,9 @@ def _warn_about_input(rejections, frontend) -> None:
     """Say what the data path dropped or could not refine, so nothing is lost silently."""
     # The scans that build each new local map (the first few of a recording) are not matched
     # by design: an info, so that a clean recording ends without a warning.
-    unexpected = {r: n for r, n in rejections.counts.items() if r not in EXPECTED_REJECTIONS}
+    # match_unconfirmed gets its own warning below, with its reasons.
+    unexpected = {r: n for r, n in rejections.counts.items()
+                  if r not in EXPECTED_REJECTIONS and r != "match_unconfirmed"}
     expected = {r: n for r, n in rejections.counts.items() if r in EXPECTED_REJECTIONS}
     if unexpected:
         log.warning("rejected input (counted, not used): %s",
@@ -204,8 +206,8 @@ def _warn_about_input(rejections, frontend) -> None:
     if expected:
         log.info("not used by design: %s", ", ".join(f"{r}: {n}" for r, n in sorted(expected.items())))
     if frontend is not None and frontend.skipped_scans:
-        log.info("%d scans of a fast laser not matched: it is matched every %d scans, about "
-                 "10 Hz (sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
+        log.info("%d scans not matched by design: every %d-th scan is, about 0.3 s apart "
+                 "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
                  frontend.decimator.every)
     if frontend is not None and frontend.matcher.odometry_guess_failures:
         log.warning("%d scan(s) could only be registered from the previous scan's motion: the "
@@ -213,14 +215,19 @@ def _warn_about_input(rejections, frontend) -> None:
                     "values far off, or the encoders wired wrong)",
                     frontend.matcher.odometry_guess_failures)
     unrefined = frontend.refined_matcher.unrefined if frontend is not None else {}
-    if unrefined.get("no_lines"):
-        log.warning("%d scan match(es) kept KISS-ICP's motion without the point-to-line "
-                    "refinement: too few points on lines (no walls in view?); such motions "
-                    "can be slightly short", unrefined["no_lines"])
-    if unrefined.get("correction_too_large"):
-        log.warning("%d scan match(es) kept KISS-ICP's motion: the point-to-line refinement "
-                    "would have moved them by more than 5 cm (lines that are not walls: an "
-                    "outdoor scene?)", unrefined["correction_too_large"])
+    if unrefined:
+        # KISS-ICP's motion alone is biased where the refinement fails (point_to_line.py).
+        log.warning("%d of %d scan matches not used: the point-to-line refinement could not "
+                    "confirm them (%s; few straight walls in view: an outdoor scene?)",
+                    sum(unrefined.values()), frontend.refined_matcher.matches,
+                    ", ".join(f"{UNREFINED_REASONS[r]}: {n}" for r, n in sorted(unrefined.items())))
+
+
+UNREFINED_REASONS = {
+    "no_lines": "too few points on lines",
+    "too_few_pairs": "too few points near a line",
+    "correction_too_large": "it would move KISS-ICP's answer by more than 5 cm",
+}
 
 
 class _Warnings(logging.Handler):

@@ -112,9 +112,13 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
     inputs = graph_mod.GraphInputs.from_keyframes(
         graph_mod.merge_keyframes(keyframes, params.keyframe_interval))
     if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
+        unconfirmed = rejections is not None and rejections.counts.get("match_unconfirmed", 0)
+        hint = (" The scan matches were not confirmed by the point-to-line refinement: the "
+                "scans have too little straight structure (walls) for the scan matcher; "
+                "record among walls." if unconfirmed and len(inputs.laser_from) == 0 else "")
         raise CalibrationError(
             f"the graph has {len(inputs.odo_from)} odometry and {len(inputs.laser_from)} "
-            f"laser edges; both are needed. Rejections: {rejections or 'none'}"
+            f"laser edges; both are needed.{hint} Rejections: {rejections or 'none'}"
         )
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     prior_sigma = graph_mod.prior_sigmas(nominal)

@@ -1,11 +1,12 @@
 """From sensor samples to graph keyframes: the one data path for live topics and bags.
 
-Every scan that is matched (a fast laser's every n-th: frontend/decimation.py) and that the
+Every scan that is matched (about 0.3 s apart, every n-th: frontend/decimation.py) and that the
 encoders cover becomes a keyframe. Its edges to the previous keyframes:
   - the wheel angle increments since the previous keyframe (odometry edge), unless the
     encoder stream broke in between (gap, clock jump), and
   - the laser's motion from the last scan the matcher accepted (laser edge), unless the
-    registration failed or the scan had no usable beams.
+    registration failed, the scan had no usable beams, or the point-to-line refinement could
+    not confirm it (frontend/point_to_line.py: no lines, an outdoor scene).
 
 The scan matcher is seeded with the wheel-odometry prediction under the current
 calibration, mapped into the laser frame: z_guess = l⁻¹ ∘ K ∘ l.
@@ -77,7 +78,7 @@ class Frontend:
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
-        self.decimator = ScanDecimator()  # a fast laser is matched at about 10 Hz
+        self.decimator = ScanDecimator()  # scans are matched about 0.3 s apart
 
     @property
     def registered(self) -> int:
@@ -89,7 +90,7 @@ class Frontend:
 
     @property
     def skipped_scans(self) -> int:
-        """Scans of a fast laser not matched (see frontend/decimation.py)."""
+        """Scans not matched by design (see frontend/decimation.py)."""
         return self.decimator.skipped
 
     def add_scan(self, scan: Scan) -> list:
@@ -121,7 +122,7 @@ class Frontend:
         config = self.matcher.config
         points = scan_to_points(scan, config.min_range, config.max_range)
         match, z = self.refined_matcher.add_scan(scan, guess, points)
-        if match is not None:
+        if z is not None:
             registration.match_from = int(match.index_from)
             registration.laser_motion = z
             registration.laser_information = np.asarray(match.information, float)

@@ -1,0 +1,38 @@
+"""Which scans are matched (frontend/decimation.py): about MATCH_PERIOD apart at any rate,
+the same scans whether reading starts at the recording's start or in the middle."""
+import numpy as np
+import pytest
+
+from sclam_ros.frontend.decimation import MATCH_PERIOD, RATE_SAMPLE, ScanDecimator
+
+
+def accepted(stamps):
+    decimator = ScanDecimator()
+    return [t for t in stamps if decimator.accept(t)], decimator
+
+
+@pytest.mark.parametrize("rate", [4.0, 5.0, 10.0, 12.5, 25.0, 40.0])
+def test_matched_scans_are_about_the_match_period_apart(rate):
+    # A real laser's period is a hair off its nominal one (5 Hz: 0.2000001 s).
+    period = 1.0 / rate * (1 + 1e-7)
+    stamps = 1.7e9 + period * np.arange(int(60 * rate))
+    kept, decimator = accepted(stamps)
+    # (the first grid scan after the rate sample may follow the sample's last scan closely)
+    spacing = np.diff(kept[RATE_SAMPLE + 2:])
+    # Every n-th scan, n the nearest whole number of periods to MATCH_PERIOD (halves up):
+    # never closer than half the match period, never farther than 1.5 of it or one period.
+    expected = max(1, int(np.floor(MATCH_PERIOD * rate + 0.5)))
+    assert decimator.every == expected
+    assert np.allclose(spacing, expected * period, atol=1e-5)  # stamps near 1.7e9 s: ~0.2 µs steps
+    assert spacing.min() >= min(0.5 * MATCH_PERIOD, period) - 1e-9
+    assert decimator.skipped == len(stamps) - len(kept)
+
+
+def test_a_chunk_read_from_the_middle_matches_the_same_scans():
+    period = 0.1 + 1.3e-7
+    stamps = 1.7e9 + 0.0437 + period * np.arange(3000)
+    whole, _ = accepted(stamps)
+    chunk, _ = accepted(stamps[1234:])
+    # After the chunk's rate sample and the first grid scan that closes it.
+    after_warmup = set(chunk[RATE_SAMPLE + 2:])
+    assert after_warmup and after_warmup <= set(whole)
