@@ -60,8 +60,8 @@ def main():
         print(rows[-1], flush=True)
     print(f"\nsclam calibrate on simulated PowerBot recordings (median of {args.repeat} runs, "
           f"10 Hz × 360 beams, 50 Hz encoders, this machine: 2 cores):")
-    print(table(rows, ["recording", "scans", "read+match s", "solve s", "total s",
-                       "real-time factor", "ms per scan", "peak RSS MB"]))
+    print(table(rows, ["recording", "scans used", "read+match s", "solve s", "total s",
+                       "real-time factor", "ms per scan used", "peak RSS MB"]))
 
 
 if __name__ == "__main__":

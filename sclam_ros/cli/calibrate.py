@@ -14,6 +14,7 @@ import math
 from pathlib import Path
 
 from sclam_ros.core.params import CALIBRATION_KEYS
+from sclam_ros.frontend.decimation import MATCH_PERIOD
 
 log = logging.getLogger("sclam")
 
@@ -206,9 +207,9 @@ def _warn_about_input(rejections, frontend) -> None:
     if expected:
         log.info("not used by design: %s", ", ".join(f"{r}: {n}" for r, n in sorted(expected.items())))
     if frontend is not None and frontend.skipped_scans:
-        log.info("%d scans not matched by design: every %d-th scan is, about 0.3 s apart "
+        log.info("%d scans not matched by design: every %d-th scan is, about %g s apart "
                  "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
-                 frontend.decimator.every)
+                 frontend.decimator.every, MATCH_PERIOD)
     if frontend is not None and frontend.matcher.odometry_guess_failures:
         log.warning("%d scan(s) could only be registered from the previous scan's motion: the "
                     "wheel odometry under the nominal calibration predicted them badly (nominal "
@@ -276,7 +277,7 @@ def _run(args, warnings) -> int:
         progress=(lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost))
         if args.verbose else None,
     )
-    print(f"{result.scans_used} scans over {result.duration_s:.1f} s; "
+    print(f"{result.scans_used} scans matched ({MATCH_PERIOD:g} s apart) over {result.duration_s:.1f} s; "
           f"solver: {result.iterations} iterations, converged: {result.converged}")
     if not result.converged:
         log.warning("the solver stopped with the parameters still moving by more than %.2g σ "
