@@ -209,7 +209,7 @@ def _warn_about_input(rejections, frontend) -> None:
     if frontend is not None and frontend.skipped_scans:
         log.info("%d scans not matched by design: every %d-th scan is, about %g s apart "
                  "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
-                 frontend.decimator.every, MATCH_PERIOD)
+                 frontend.decimator.every, frontend.decimator.match_period)
     if frontend is not None and frontend.matcher.odometry_guess_failures:
         log.warning("%d scan(s) could only be registered from the previous scan's motion: the "
                     "wheel odometry under the nominal calibration predicted them badly (nominal "

@@ -26,7 +26,7 @@ import numpy as np
 
 from sclam_ros.core import kinematics
 from sclam_ros.frontend import point_to_line
-from sclam_ros.frontend.decimation import ScanDecimator
+from sclam_ros.frontend.decimation import MATCH_PERIOD, ScanDecimator
 from sclam_ros.core.inputs import Rejections, Scan
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.frontend.scan_matching import (
@@ -58,7 +58,8 @@ REMEMBERED_REGISTRATIONS = 256
 class Frontend:
     """Feeds encoder samples and scans (in arrival order); returns finished keyframes."""
 
-    def __init__(self, params, rejections: Optional[Rejections] = None, matcher=None):
+    def __init__(self, params, rejections: Optional[Rejections] = None, matcher=None,
+                 match_period: float = MATCH_PERIOD):
         self.params = params
         self.rejections = rejections if rejections is not None else Rejections()
         self.stream = EncoderStream.from_params(params, rejections=self.rejections)
@@ -78,7 +79,7 @@ class Frontend:
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
-        self.decimator = ScanDecimator()  # scans are matched about 0.3 s apart
+        self.decimator = ScanDecimator(match_period)  # scans matched about match_period apart
 
     @property
     def registered(self) -> int:

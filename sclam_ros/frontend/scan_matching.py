@@ -194,6 +194,14 @@ class ScanMatcherConfig:
 # Turns (rad) added to the constant-velocity prediction when the odometry's fails (see
 # ScanMatcher._search): KISS-ICP converges from about 0.15 rad off on the office scans.
 SEARCH_TURNS = (0.0, -0.3, 0.3, -0.6, 0.6)
+# When the odometry's prediction and the constant-velocity one are further apart than this
+# (m, rad), both are registered (ScanMatcher.add_scan): 0.1 m in 0.3 s is a change of
+# speed of 0.33 m/s, beyond the simulator's accelerations (≤ 0.6 m/s²: 0.054 m); reversed
+# odometry at 0.5 m/s puts them 0.3 m apart.
+PREDICTIONS_APART = (0.1, 0.1)
+# The constant-velocity registration replaces the odometry's only with this much more
+# overlap with the previous scan (fraction of points within inlier_distance).
+FITNESS_MARGIN = 0.05
 
 
 @dataclass
@@ -302,6 +310,17 @@ class ScanMatcher:
             prediction = se2.compose(self._pose, self._velocity * (scan.stamp - self._stamp))
 
         new_pose, used, failure, fitness, rmse = self._register(sources, prediction)
+        constant_velocity = se2.compose(self._pose, self._velocity * dt)
+        if have_guess and not failure and _apart(prediction, constant_velocity):
+            # The odometry and the laser's own last motion disagree by more than a driver's
+            # change of speed in one match (encoders wired wrong, a laser yaw 180° off):
+            # a registration from a wrong guess can still converge, in a corridor, to a
+            # wrong place that overlaps well. The one the previous scan confirms better
+            # wins; ties go to the odometry.
+            other = self._register(sources, constant_velocity)
+            if other[2] is None and other[3] > fitness + FITNESS_MARGIN:
+                new_pose, used, failure, fitness, rmse = other
+                self.odometry_guess_failures += 1
         if failure:
             # The odometry can be what is wrong (swapped or backwards encoders, a nominal
             # calibration far off): try again from the constant-velocity prediction, as
@@ -309,7 +328,7 @@ class ScanMatcher:
             # measures the motion the wheels contradict (core/wiring.py needs exactly those
             # motions). Without odometry, the turns are what is left to try.
             turns = SEARCH_TURNS if have_guess else SEARCH_TURNS[1:]
-            retry = self._search(sources, se2.compose(self._pose, self._velocity * dt), turns)
+            retry = self._search(sources, constant_velocity, turns)
             if retry is not None:
                 new_pose, used, failure, fitness, rmse = retry
                 self.odometry_guess_failures += have_guess
@@ -406,6 +425,11 @@ class ScanMatcher:
         if not inliers.any():
             return 0.0, float("inf")
         return float(inliers.mean()), float(np.sqrt(np.mean(d[inliers] ** 2)))
+
+
+def _apart(a, b) -> bool:
+    d = se2.between(a, b)
+    return bool(np.hypot(d[0], d[1]) > PREDICTIONS_APART[0] or abs(d[2]) > PREDICTIONS_APART[1])
 
 
 def _voxel(points: np.ndarray, size: float) -> np.ndarray:

@@ -42,6 +42,7 @@ import numpy as np
 
 from sclam_ros.core import graph as graph_mod, kinematics, se2
 from sclam_ros.frontend.pipeline import Frontend, Keyframe
+from sclam_ros.frontend.decimation import ONLINE_MATCH_PERIOD
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian, gaussian_of_prior
 from sclam_ros.core.observability import Observability, settle_poses
@@ -177,7 +178,7 @@ class OnlineCalibrator:
         self.solve_every = solve_every
         self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
         self.generation = 0  # counts window resets; solves and chunks from older ones are void
-        self.frontend = Frontend(params, self.rejections)
+        self.frontend = Frontend(params, self.rejections, match_period=ONLINE_MATCH_PERIOD)
         self.merger = KeyframeMerger(params.keyframe_interval)
         self.reset_calibration()
 
