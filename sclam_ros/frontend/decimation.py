@@ -23,7 +23,8 @@ The rule depends on the stamps only, not on where reading started: n = MATCH_PER
 median period of the first scans, rounded (halves up), and a scan is matched when it is the
 first seen in its bin of the time grid of width n·period. A recording cut into chunks
 (sclam_ros/fleet/chunked.py) therefore matches the same scans in every chunk as in one
-sequential pass. A laser slower than ~4.5 Hz is never thinned (n = 1).
+sequential pass. At MATCH_PERIOD a laser slower than ~4.5 Hz is never thinned (n = 1); at
+ONLINE_MATCH_PERIOD one slower than ~13 Hz.
 """
 from __future__ import annotations
 
