@@ -207,7 +207,7 @@ def _warn_about_input(rejections, frontend) -> None:
     if expected:
         log.info("not used by design: %s", ", ".join(f"{r}: {n}" for r, n in sorted(expected.items())))
     if frontend is not None and frontend.skipped_scans:
-        log.info("%d scans not matched by design: every %d-th scan is, about %g s apart "
+        log.info("%d scans not matched by design: 1 scan in %d is, about %g s apart "
                  "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
                  frontend.decimator.every, frontend.decimator.match_period)
     if frontend is not None and frontend.matcher.odometry_guess_failures:
