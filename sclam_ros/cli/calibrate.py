@@ -211,10 +211,15 @@ def _warn_about_input(rejections, frontend) -> None:
                  "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
                  frontend.decimator.every, frontend.decimator.match_period)
     if frontend is not None and frontend.matcher.odometry_guess_failures:
-        log.warning("%d scan(s) could only be registered from the previous scan's motion: the "
-                    "wheel odometry under the nominal calibration predicted them badly (nominal "
-                    "values far off, or the encoders wired wrong)",
-                    frontend.matcher.odometry_guess_failures)
+        log.warning("%d scan(s) could only be registered from the previous scan's motion: "
+                    "from the wheel odometry's prediction (nominal calibration) the registration "
+                    "failed (nominal values far off, the encoders wired wrong, or little "
+                    "structure in view)", frontend.matcher.odometry_guess_failures)
+    if frontend is not None and frontend.matcher.odometry_guess_overruled:
+        # Outdoors the overlap that decides is noisy; wiring errors are refused elsewhere.
+        log.info("%d scan(s) registered from the previous scan's motion, which the previous "
+                 "scan confirmed better than the wheel odometry's prediction",
+                 frontend.matcher.odometry_guess_overruled)
     unrefined = frontend.refined_matcher.unrefined if frontend is not None else {}
     if unrefined:
         # KISS-ICP's motion alone is biased where the refinement fails (point_to_line.py).

@@ -246,6 +246,9 @@ class ScanMatcher:
         )
         # Scans registered from the constant-velocity prediction after the odometry guess failed.
         self.odometry_guess_failures = 0
+        # Scans whose odometry registration converged but the constant-velocity one, tried
+        # because the two predictions disagreed, overlapped the previous scan better.
+        self.odometry_guess_overruled = 0
         self.reset()
 
     def reset(self) -> None:
@@ -320,7 +323,7 @@ class ScanMatcher:
             other = self._register(sources, constant_velocity)
             if other[2] is None and other[3] > fitness + FITNESS_MARGIN:
                 new_pose, used, failure, fitness, rmse = other
-                self.odometry_guess_failures += 1
+                self.odometry_guess_overruled += 1
         if failure:
             # The odometry can be what is wrong (swapped or backwards encoders, a nominal
             # calibration far off): try again from the constant-velocity prediction, as
