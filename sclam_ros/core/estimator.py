@@ -101,7 +101,8 @@ def check_wiring(keyframes, params) -> None:
         raise CalibrationError(miswired)
 
 
-def _judged_again(problem, observability, result, scales, nominal, prior_sigma, progress):
+def _judged_again(problem, observability, locks, result, scales, nominal, prior_sigma,
+                  progress):
     """Observability judged again at the locked solution; where that determines a direction
     the start did not, the lock is lifted from it and the problem solved again.
 
@@ -112,7 +113,6 @@ def _judged_again(problem, observability, result, scales, nominal, prior_sigma, 
     nominal (the lock held it), so it cannot have wandered to where the curvature looks
     informative; a direction the motion does not excite (a spin, a straight line) stays
     undetermined there too (the same thresholds)."""
-    locks = [f for f in problem.factors if getattr(f, "name", "") == "locked_calibration"]
     problem.factors = [f for f in problem.factors if f not in locks]
     again = Observability.of_problem(problem, prior_sigma, values=result.values)
     if np.sum(again.observable) <= np.sum(observability.observable):
@@ -153,11 +153,12 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
     # An undetermined direction (standing still, straight lines only, spinning in place)
     # would drift to fit noise, and with it the noise models that depend on it: it is held
     # at nominal. The parameters it moves are reported at nominal with their prior σ.
-    problem.factors.extend(observability.lock(nominal))
+    locks = observability.lock(nominal)
+    problem.factors.extend(locks)
     result, scales = solve_with_variance_components(problem, progress=progress)
     if not all(observability.observable):
-        observability, result, scales = _judged_again(problem, observability, result, scales,
-                                                      nominal, prior_sigma, progress)
+        observability, result, scales = _judged_again(problem, observability, locks, result,
+                                                      scales, nominal, prior_sigma, progress)
     # The step a continued solve would still take, from the factorisation the covariance
     # needs anyway: the iteration cap alone says nothing about whether the answer moved.
     remaining, lu = remaining_step(problem, result.values, ["odometry", "laser"])

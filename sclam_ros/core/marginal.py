@@ -50,26 +50,6 @@ def gaussian_of_prior(mean, sigma) -> Gaussian:
     return Gaussian(information, information @ np.asarray(mean, float))
 
 
-def radius_change_statistic(prior: Gaussian, posterior_mean, posterior_cov) -> float:
-    """χ² (2 dof) of the radii's move from the prior to the window's posterior.
-
-    For a linear-Gaussian update, posterior mean − prior mean is Gaussian with covariance
-    Σ_prior − Σ_posterior when the window's data and the prior describe the same radii.
-    A radius that changed since the prior's data was driven moves the posterior further
-    than that. `prior` must include every prior the window problem had (so that it is
-    proper); the statistic is on the radii only: b and l do not drift.
-    """
-    prior_cov = np.linalg.inv(prior.information)
-    move = (np.asarray(posterior_mean) - prior_cov @ prior.eta)[RADII]
-    spread = (prior_cov - np.asarray(posterior_cov))[np.ix_(RADII, RADII)]
-    values, vectors = np.linalg.eigh(0.5 * (spread + spread.T))
-    keep = values > 1e-12 * max(values.max(initial=0.0), 1e-300)
-    if not keep.any():
-        return 0.0
-    projected = vectors[:, keep].T @ move
-    return float(np.sum(projected**2 / values[keep]))
-
-
 class CalibrationPriorFactor(factors.Factor):
     """A Gaussian on the calibration as a factor over the odometry and laser blocks."""
 

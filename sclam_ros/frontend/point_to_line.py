@@ -74,9 +74,10 @@ class RefinedScanMatcher:
 
     A match the refinement cannot confirm is not used. KISS-ICP's answer alone is biased
     where the refinement fails: on the simulator's outdoor scene (trees, poles, cars; 120 s,
-    seeds 1 and 2, matches 0.3 s apart) the matches it had to keep unrefined came out 10-14 % long, with median errors of 26-30 mm on 8 cm of motion, while
-    the noise model gives them 1-2 mm; the refined ones were within 1 %. Kept, they pulled
-    the wheel radii up to +3.5 %. They are counted as the matcher's rejection
+    seeds 1 and 2, matches 0.3 s apart) the matches it had to keep unrefined came out
+    10-14 % long, with median errors of 26-30 mm on 8 cm of motion, while the noise model
+    gives them 1-2 mm; the refined ones were within 1 %. Kept, they pulled the wheel radii
+    up to +3.5 %. They are counted as the matcher's rejection
     "match_unconfirmed", by reason in `unrefined` (reported by `sclam calibrate`); the
     keyframe keeps its odometry edge.
     """

@@ -307,13 +307,10 @@ class ScanMatcher:
 
         have_guess = self._pending_complete
         dt = scan.stamp - self._stamp
-        if have_guess:
-            prediction = se2.compose(self._pose, self._pending)
-        else:
-            prediction = se2.compose(self._pose, self._velocity * (scan.stamp - self._stamp))
+        constant_velocity = se2.compose(self._pose, self._velocity * dt)
+        prediction = se2.compose(self._pose, self._pending) if have_guess else constant_velocity
 
         new_pose, used, failure, fitness, rmse = self._register(sources, prediction)
-        constant_velocity = se2.compose(self._pose, self._velocity * dt)
         if have_guess and not failure and _apart(prediction, constant_velocity):
             # The odometry and the laser's own last motion disagree by more than a driver's
             # change of speed in one match (encoders wired wrong, a laser yaw 180° off):
