@@ -108,3 +108,50 @@ def test_outdoors_only_confirmed_matches_are_used():
     assert refined_matcher.matches == not_used + used
     assert med[True] < 0.7 * med[False], med
     assert p99[True] <= 1.2 * p99[False], p99
+
+
+def _normal_errors(reference, true_normal):
+    """Angle (rad) between each kept point's normal and the true one (sign-free)."""
+    cos = np.abs(reference.normals @ np.asarray(true_normal, float))
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def test_wide_normals_follow_a_noisy_wall():
+    """A URG-04LX-like wall (1 cm between beams, 3 cm range noise): six beams span 5 cm, so
+    their line is off by tens of degrees; fitted over 30 beams (0.3 m) it is within a few.
+    The expected error of a line fitted to n points over a length L with noise σ is about
+    σ·sqrt(12 / n) / L: 0.03·sqrt(12/6)/0.05 ≈ 0.8 rad for six, ≈ 0.06 rad for 30."""
+    rng = np.random.default_rng(7)
+    y = np.arange(-1.5, 1.5, 0.01)
+    wall = np.column_stack([2.0 + rng.normal(0.0, 0.03, y.size), y])
+    narrow = point_to_line.ReferenceScan.from_points(wall)
+    wide = point_to_line.ReferenceScan.from_points(wall, wide=True)
+    # Six beams pass the straightness test on most of the wall (their spread across it is
+    # below 2 cm) with wrong normals; 30 beams over 0.3 m pass where the noise allows.
+    assert len(narrow.points) > 0.8 * len(wall)
+    assert np.sqrt(np.mean(_normal_errors(narrow, (1.0, 0.0)) ** 2)) > 0.3
+    assert len(wide.points) > 0.4 * len(wall)
+    assert np.sqrt(np.mean(_normal_errors(wide, (1.0, 0.0)) ** 2)) < 0.1
+
+
+def test_wide_normals_keep_corners_out():
+    """Two walls meeting at a right angle: points within a wide neighbourhood of the corner
+    are not on one line and get no normal."""
+    arm = np.arange(0.0, 1.0, 0.01)
+    corner = np.concatenate([np.column_stack([arm, np.zeros_like(arm)]),
+                             np.column_stack([np.zeros_like(arm[1:]), arm[1:]])])
+    wide = point_to_line.ReferenceScan.from_points(corner, wide=True)
+    near_corner = np.hypot(wide.points[:, 0], wide.points[:, 1]) < 0.05
+    assert not near_corner.any()
+    # Away from it the normals are the walls' own.
+    far = np.hypot(wide.points[:, 0], wide.points[:, 1]) > 0.3
+    on_x_wall = far & (np.abs(wide.points[:, 1]) < 1e-9)
+    assert np.allclose(np.abs(wide.normals[on_x_wall, 1]), 1.0, atol=1e-6)
+
+
+def test_scan_range_noise_chooses_the_wall_fit():
+    from sclam_ros.core.params import SclamParams
+    from sclam_ros.frontend.pipeline import Frontend
+
+    assert not Frontend(SclamParams()).refined_matcher.wide_normals  # 1 cm by default
+    assert Frontend(SclamParams(scan_range_noise=0.03)).refined_matcher.wide_normals
