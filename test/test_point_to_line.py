@@ -125,7 +125,7 @@ def test_wide_normals_follow_a_noisy_wall():
     y = np.arange(-1.5, 1.5, 0.01)
     wall = np.column_stack([2.0 + rng.normal(0.0, 0.03, y.size), y])
     narrow = point_to_line.ReferenceScan.from_points(wall)
-    wide = point_to_line.ReferenceScan.from_points(wall, wide=True)
+    wide = point_to_line.ReferenceScan.from_points(wall, noise=0.03)
     # Six beams pass the straightness test on most of the wall (their spread across it is
     # below 2 cm) with wrong normals; 30 beams over 0.3 m pass where the noise allows.
     assert len(narrow.points) > 0.8 * len(wall)
@@ -140,7 +140,7 @@ def test_wide_normals_keep_corners_out():
     arm = np.arange(0.0, 1.0, 0.01)
     corner = np.concatenate([np.column_stack([arm, np.zeros_like(arm)]),
                              np.column_stack([np.zeros_like(arm[1:]), arm[1:]])])
-    wide = point_to_line.ReferenceScan.from_points(corner, wide=True)
+    wide = point_to_line.ReferenceScan.from_points(corner, noise=0.03)
     near_corner = np.hypot(wide.points[:, 0], wide.points[:, 1]) < 0.05
     assert not near_corner.any()
     # Away from it the normals are the walls' own.
@@ -149,9 +149,34 @@ def test_wide_normals_keep_corners_out():
     assert np.allclose(np.abs(wide.normals[on_x_wall, 1]), 1.0, atol=1e-6)
 
 
-def test_scan_range_noise_chooses_the_wall_fit():
-    from sclam_ros.core.params import SclamParams
-    from sclam_ros.frontend.pipeline import Frontend
+def _office_scans(noise, count=12, seed=3):
+    """Scans (inputs.Scan, 360 beams) of the office along a short drive, Gaussian range noise."""
+    from sclam_ros.core.inputs import Scan
 
-    assert not Frontend(SclamParams()).refined_matcher.wide_normals  # 1 cm by default
-    assert Frontend(SclamParams(scan_range_noise=0.03)).refined_matcher.wide_normals
+    world, rng = office_world(), np.random.default_rng(seed)
+    scans = []
+    for i in range(count):
+        ranges = world.raycast(np.array([4.0 + 0.05 * i, 2.5, 0.1 * i]), ANGLES, 20.0)
+        scans.append(Scan(stamp=0.1 * i, ranges=ranges + rng.normal(0.0, noise, ranges.shape),
+                          angle_min=float(ANGLES[0]), angle_increment=float(ANGLES[1] - ANGLES[0]),
+                          range_min=0.05, range_max=20.0))
+    return scans
+
+
+@pytest.mark.parametrize("noise", [0.003, 0.01, 0.03, 0.05])
+def test_range_noise_is_measured_from_the_scan(noise):
+    """The second-difference estimate recovers the simulated range noise (within 25 %)."""
+    estimates = [point_to_line.range_noise(scan) for scan in _office_scans(noise)]
+    assert np.median(estimates) == pytest.approx(noise, rel=0.25)
+
+
+def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():
+    from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
+
+    # 0.3 m: no laser is that noisy; returns that jump so are not on surfaces.
+    for noise, wide in ((0.01, False), (0.04, True), (0.3, False)):
+        matcher = point_to_line.RefinedScanMatcher(ScanMatcher())
+        for scan in _office_scans(noise):
+            matcher._remember_reference(scan, scan_to_points(scan))
+        assert matcher.wide_normals == wide
+        assert len(matcher.range_noises) == 12

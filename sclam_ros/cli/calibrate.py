@@ -220,7 +220,17 @@ def _warn_about_input(rejections, frontend) -> None:
         log.info("%d scan(s) registered from the previous scan's motion, which the previous "
                  "scan confirmed better than the wheel odometry's prediction",
                  frontend.matcher.odometry_guess_overruled)
-    unrefined = frontend.refined_matcher.unrefined if frontend is not None else {}
+    from statistics import median
+
+    from sclam_ros.frontend import point_to_line
+
+    refined = frontend.refined_matcher if frontend is not None else None
+    if refined is not None and refined.wide_normals:
+        log.info("noisy laser (range noise %.0f mm measured on its first scans, from %.0f mm "
+                 "on): wall directions fitted over %.2f m of wall instead of %d beams",
+                 1e3 * median(refined.range_noises), 1e3 * point_to_line.NOISY_RANGE,
+                 point_to_line.NORMAL_RADIUS, point_to_line.NORMAL_NEIGHBOURS)
+    unrefined = refined.unrefined if refined is not None else {}
     if unrefined:
         # KISS-ICP's motion alone is biased where the refinement fails (point_to_line.py).
         log.warning("%d of %d scan matches not used: the point-to-line refinement could not "

@@ -162,15 +162,6 @@ class SclamParams:
         _non_negative,
         "beams",
     )
-    scan_range_noise: float = _param(
-        0.01,
-        "1σ range noise of the laser (its datasheet's accuracy). From 0.02 m up the "
-        "point-to-line refinement fits each wall's direction over 0.25 m of wall instead "
-        "of 6 beams: on noisy lasers the short fit's direction is off enough to leave "
-        "scan matches short (frontend/point_to_line.py)",
-        _non_negative,
-        "m",
-    )
     # --- online estimation (sclam_node, sclam calibrate --track) --------------------
     window_distance: float = _param(
         100.0,

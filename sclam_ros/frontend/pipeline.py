@@ -68,8 +68,7 @@ class Frontend:
         self.matcher = matcher or ScanMatcher(
             ScanMatcherConfig.from_params(params), rejections=self.rejections
         )
-        self.refined_matcher = point_to_line.RefinedScanMatcher(
-            self.matcher, wide_normals=params.scan_range_noise >= point_to_line.NOISY_RANGE)
+        self.refined_matcher = point_to_line.RefinedScanMatcher(self.matcher)
         # The calibration used for the matcher's initial guess; the online estimator
         # updates it as it learns.
         self.calibration = np.array(

@@ -20,26 +20,41 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sclam_ros.core import se2
+from sclam_ros.frontend.scan_matching import valid_beams
 
 NORMAL_NEIGHBOURS = 6
-# Noisy lasers (range noise from NOISY_RANGE up, the parameter scan_range_noise): a wall's
-# direction is fitted over the points within NORMAL_RADIUS (at most WIDE_NEIGHBOURS: at the
-# 1 cm beam spacing of a URG-04LX at 2 m, 0.3 m of wall; at least NORMAL_NEIGHBOURS). Six
+# Noisy lasers: a wall's direction is fitted over the points within NORMAL_RADIUS (at most
+# WIDE_NEIGHBOURS: at the 1 cm beam spacing of a URG-04LX at 2 m, 0.3 m of wall; at least
+# the NORMAL_NEIGHBOURS nearest, so the sparse beams on a far wall still make a line). Six
 # beams of a 3 cm laser span a few cm of wall: their line is off by tens of degrees
 # (test_point_to_line), which lets the along-wall offsets of nearest-sample pairing (the
 # point-to-point bias this refinement removes) back into the motion. Measured with
 # `python bench/sensor_matrix.py --seeds 10` (120 s each), six beams against the wide fit:
-# URG-04LX-like (3 cm, 5.6 m) match scale 0.9940 → 0.9971, radii RMS error 0.53 → 0.29 %,
-# RMS err/σ 2.0 → 1.2; 5 cm noise 0.9975 → 0.9992, 0.69 → 0.27 %. With 1 cm noise six
-# beams are right: the wide fit did not help there and made the outdoor scene (poles,
-# trunks) worse (radii RMS error 0.5 → 1.5 % on 4 seeds).
-NOISY_RANGE = 0.02  # m
+# URG-04LX-like (3 cm, 5.6 m) match scale 0.9940 → 0.9973, radii RMS error 0.53 → 0.29 %,
+# RMS err/σ 2.0 → 1.2; 5 cm noise 0.9975 → 1.0001, 0.69 → 0.19 %. Where the noise is low
+# six beams are right: the wide fit made the outdoor scene (poles, trunks; 1 cm) worse
+# (radii RMS error 0.5 → 1.5 % on 4 seeds).
 NORMAL_RADIUS = 0.25  # m
 WIDE_NEIGHBOURS = 30
 # A wide neighbourhood is a wall while its spread across the line is below this fraction of
 # its spread along it (RMS values; 0.3 m of a wall with 3 cm noise: about 0.35, so about half
-# of such a wall passes; 30 beams at a right-angle corner, two 0.15 m arms: 0.58).
+# of such a wall passes; 30 beams at a right-angle corner, two 0.15 m arms: 0.58) and below
+# WIDE_NOISE_SPREAD times the laser's measured range noise (scattered points, e.g. poles,
+# that happen to lie along a direction are not a wall).
 WIDE_STRAIGHTNESS = 0.3
+WIDE_NOISE_SPREAD = 2.0
+# Which lasers are noisy is measured, not configured (a datasheet's range accuracy includes
+# bias and says little about the beam-to-beam noise that matters here): range_noise() of
+# each of the first NOISE_SCANS reference scans of a recording, their median against
+# NOISY_RANGE. Median over the first 30 scans on the simulator's lasers (bench/sensor_matrix.py):
+# 1 cm indoors 10-12 mm, outdoors (trees, poles, cars: surfaces end often) 15-19 mm; 3 cm
+# (URG-04LX-like) 28-31 mm; 5 cm 54 mm; 2 cm + 1 % of range 61 mm. The real Mines
+# URG-04LX: 3 mm (its datasheet's ±3 cm is accuracy, not beam-to-beam noise).
+# Above NOT_A_NOISE consecutive returns do not lie on surfaces (isolated poles, foliage, a
+# scene of small objects) and the estimate says nothing about the laser: six beams.
+NOISY_RANGE = 0.02  # m
+NOT_A_NOISE = 0.1  # m
+NOISE_SCANS = 30
 MAX_PAIR_DISTANCE = 0.15  # m; KISS-ICP's answer is within a few cm
 HUBER = 0.02  # m; ~2σ of the range noise of a typical 2D lidar
 MAX_LINE_SPREAD = 0.02  # m RMS off the fitted line: beyond it the neighbourhood is a corner
@@ -62,43 +77,64 @@ class ReferenceScan:
     tree: cKDTree
 
     @classmethod
-    def from_points(cls, points, wide=False):
+    def from_points(cls, points, noise=None):
         """The scan's points on lines, with their normals, or None if fewer than 10 are.
-        wide: fit each line over NORMAL_RADIUS (a noisy laser), not NORMAL_NEIGHBOURS beams."""
+        noise: None fits each line over NORMAL_NEIGHBOURS beams; a noisy laser's measured
+        range noise (m) fits it over NORMAL_RADIUS of wall."""
         points = np.asarray(points, float)[:, :2]
         if len(points) < NORMAL_NEIGHBOURS + 1:
             return None
         tree = cKDTree(points)
+        wide = noise is not None
+        dist, idx = tree.query(points, min(WIDE_NEIGHBOURS if wide else NORMAL_NEIGHBOURS,
+                                           len(points)))
         if wide:
-            dist, idx = tree.query(points, min(WIDE_NEIGHBOURS, len(points)))
             near = (np.arange(dist.shape[1]) < NORMAL_NEIGHBOURS) | (dist <= NORMAL_RADIUS)
+            normals, across, along = _line_fit(points, idx, near)
+            straight = (across < MAX_LINE_SPREAD) | (
+                (across < WIDE_STRAIGHTNESS * along) & (across < WIDE_NOISE_SPREAD * noise))
         else:
-            _, idx = tree.query(points, NORMAL_NEIGHBOURS)
-            near = np.ones(idx.shape, bool)
-        weight = near.astype(float)
-        count = weight.sum(axis=1)
-        nbr = points[idx]  # (N, k, 2)
-        centre = (nbr * weight[..., None]).sum(axis=1, keepdims=True) / count[:, None, None]
-        dx, dy = np.moveaxis(nbr - centre, -1, 0)  # (N, k) each
-        dx, dy = dx * weight, dy * weight  # the far ones out (weights are 0 or 1)
-        # The 2×2 covariance of each neighbourhood and its eigen-decomposition in closed
-        # form (np.linalg.eigh on N small matrices was a quarter of this function's time).
-        cxx, cyy, cxy = (np.sum(dx * dx, 1) / count, np.sum(dy * dy, 1) / count,
-                         np.sum(dx * dy, 1) / count)
-        half_sum, radius = 0.5 * (cxx + cyy), np.hypot(0.5 * (cxx - cyy), cxy)
-        smallest, largest = half_sum - radius, half_sum + radius
-        along = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of the largest spread
-        normals = np.column_stack([-np.sin(along), np.cos(along)])  # across the line
-        across = np.sqrt(np.maximum(smallest, 0))
-        straight = across < MAX_LINE_SPREAD
-        if wide:
-            straight |= across < WIDE_STRAIGHTNESS * np.sqrt(np.maximum(largest, 0))
-        spread_ok = largest > 0
-        keep = straight & spread_ok
+            normals, across, along = _line_fit(points, idx)
+            straight = across < MAX_LINE_SPREAD
+        keep = straight & (along > 0)
         if keep.sum() < 10:
             return None
         kept_points = points[keep]
         return cls(kept_points, normals[keep], cKDTree(kept_points))
+
+
+def _line_fit(points, idx, near=None):
+    """(normals (N, 2), RMS spread across (N,), RMS spread along (N,)) of the line fitted to
+    each point's neighbours points[idx] (N, k), those where `near` (N, k) is False left out."""
+    weight = np.ones(idx.shape) if near is None else near.astype(float)
+    count = weight.sum(axis=1)
+    nbr = points[idx]  # (N, k, 2)
+    centre = (nbr * weight[..., None]).sum(axis=1, keepdims=True) / count[:, None, None]
+    dx, dy = np.moveaxis(nbr - centre, -1, 0)  # (N, k) each
+    dx, dy = dx * weight, dy * weight  # weights are 0 or 1
+    # The 2×2 covariance of each neighbourhood and its eigen-decomposition in closed form
+    # (np.linalg.eigh on N small matrices was a quarter of this function's time).
+    cxx, cyy, cxy = (np.sum(dx * dx, 1) / count, np.sum(dy * dy, 1) / count,
+                     np.sum(dx * dy, 1) / count)
+    half_sum, radius = 0.5 * (cxx + cyy), np.hypot(0.5 * (cxx - cyy), cxy)
+    direction = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # of the largest spread
+    normals = np.column_stack([-np.sin(direction), np.cos(direction)])  # across the line
+    return (normals, np.sqrt(np.maximum(half_sum - radius, 0.0)),
+            np.sqrt(np.maximum(half_sum + radius, 0.0)))
+
+
+def range_noise(scan):
+    """1σ range noise of a scan (m) from the second differences of consecutive returns, or
+    None with fewer than 20 triples. On a smooth surface r[i−1] − 2r[i] + r[i+1] is the
+    noise times √6 (the surface's own curvature adds ~1 mm at 1° between beams); the median
+    keeps the jumps between surfaces out."""
+    valid = valid_beams(scan)
+    r = np.where(valid, np.asarray(scan.ranges, float), 0.0)  # no inf − inf below
+    triple = valid[:-2] & valid[1:-1] & valid[2:]
+    if np.count_nonzero(triple) < 20:
+        return None
+    second = (r[:-2] - 2.0 * r[1:-1] + r[2:])[triple]
+    return float(1.4826 * np.median(np.abs(second)) / math.sqrt(6.0))
 
 
 class RefinedScanMatcher:
@@ -115,9 +151,12 @@ class RefinedScanMatcher:
     keyframe keeps its odometry edge.
     """
 
-    def __init__(self, matcher, wide_normals=False):
+    def __init__(self, matcher):
         self.matcher = matcher
-        self.wide_normals = wide_normals  # ReferenceScan.from_points(wide=): a noisy laser
+        # The laser is noisy (NOISY_RANGE), judged from range_noise() of the first
+        # NOISE_SCANS reference scans, then fixed: ReferenceScan.from_points fits wide.
+        self.wide_normals = False
+        self.range_noises = []
         self._reference = None  # ReferenceScan of the last scan the matcher gave a pose
         self._reference_index = None  # its index in the matcher's numbering
         # Matches not used, by reason: "no_lines" (the reference scan has too few points on
@@ -143,9 +182,19 @@ class RefinedScanMatcher:
                 self.unrefined[reason] += 1
                 self.matcher.rejections.add("match_unconfirmed")
         if self.matcher.posed_index == index:
-            self._reference = ReferenceScan.from_points(points, self.wide_normals)
+            self._remember_reference(scan, points)
             self._reference_index = index
         return match, z
+
+    def _remember_reference(self, scan, points):
+        """The scan just posed is the next match's reference; the first NOISE_SCANS judge
+        the laser's noise, and with it how the reference's lines are fitted."""
+        noise = range_noise(scan) if len(self.range_noises) < NOISE_SCANS else None
+        if noise is not None:
+            self.range_noises.append(noise)
+            self.wide_normals = bool(NOISY_RANGE <= np.median(self.range_noises) <= NOT_A_NOISE)
+        self._reference = ReferenceScan.from_points(
+            points, float(np.median(self.range_noises)) if self.wide_normals else None)
 
 
 def _confirmed(reference, points, z_icp):

@@ -83,7 +83,6 @@ URG_BEAMS = 682
 URG_FOV = np.radians(240.0)
 URG_RANGE_MIN = 0.02  # m
 URG_RANGE_MAX = 5.6  # m
-URG_RANGE_NOISE = 0.03  # m; Hokuyo's datasheet: ±30 mm to 1 m, ±3 % of the range beyond
 RANGE_COLUMNS = slice(24, 24 + URG_BEAMS)
 
 
@@ -91,7 +90,7 @@ def breezyslam_params() -> SclamParams:
     return SclamParams(
         ticks_per_revolution=MINES_TICKS_PER_REV,
         wheel_radius_left=MINES_RADIUS, wheel_radius_right=MINES_RADIUS, wheel_base=MINES_BASE,
-        laser_x=MINES_LASER_X, laser_y=0.0, laser_yaw=0.0, scan_range_noise=URG_RANGE_NOISE,
+        laser_x=MINES_LASER_X, laser_y=0.0, laser_yaw=0.0,
     ).validate()
 
 

@@ -4,7 +4,7 @@ Output layout: ``out`` IS the rosbag2 folder (metadata.yaml + one .db3 or .mcap)
 two extra files beside them that rosbag2 readers ignore:
 
 - ``params.yaml``: ROS 2 parameters for node ``sclam`` with the NOMINAL calibration,
-  topics, joint names, ticks per revolution and the laser's range noise, so
+  topics, joint names and ticks per revolution, so
   ``sclam calibrate OUT --params OUT/params.yaml`` runs as is;
 - ``truth.json``: the TRUE calibration (same key names), robot, seed, duration, the
   effects applied with their parameters, and the recording's start time.
@@ -112,7 +112,6 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         left_wheel_joint=JOINT_NAMES[0],
         right_wheel_joint=JOINT_NAMES[1],
         ticks_per_revolution=float(preset.ticks_per_revolution),
-        scan_range_noise=float(range_noise),  # as a user copies it from the datasheet
         **preset.nominal,
     ).validate()
     params.write_yaml(
