@@ -138,7 +138,7 @@ def run(data: Dataset, config: ScanMatcherConfig, use_guess=True, refine=True) -
         guess = data.guesses[i] if use_guess else None
         start = time.perf_counter()
         if refine:
-            match, z = refined.add_scan(scan, guess, scan_to_points(scan, config.min_range,
+            match, z, _ = refined.add_scan(scan, guess, scan_to_points(scan, config.min_range,
                                                                     config.max_range))
         else:
             match = matcher.add_scan(scan, guess)

@@ -16,6 +16,7 @@ simulated with --seeds seeds (PowerBot, --duration s, the default drive) and cal
     core, --jobs processes at once).
 
 Run: .venv/bin/python bench/sensor_matrix.py [--seeds 10] [--duration 120] [--jobs 2] [--rows ...]
+     [--factors: the URG-04LX-like row with one factor at a time set back to the default's]
 """
 from __future__ import annotations
 
@@ -49,6 +50,14 @@ ROWS = {
     "default laser, odometry 2 Hz": dict(encoder_rate=2.0),
     "outdoor, default laser": dict(scene="outdoor"),
 }
+# --factors: the URG-04LX-like row with one of its factors set back to the default laser's.
+URG = ROWS["10 Hz, 240°, 683 b, 5.6 m, 3 cm (URG-04LX)"]
+FACTOR_ROWS = {
+    "URG-04LX-like": URG,
+    "  with 1 cm noise": dict(URG, range_noise=0.01),
+    "  with 20 m range": dict(URG, laser=dict(URG["laser"], range_max=20.0)),
+    "  with 360° (1024 b)": dict(URG, beams=1024, laser=dict(URG["laser"], fov=360 * DEG)),
+}
 RADII_AND_BASE = ("wheel_radius_left", "wheel_radius_right", "wheel_base")
 
 
@@ -77,14 +86,14 @@ def match_scale(bag, truth, keyframes) -> float:
 
 def run_one(job):
     """Simulate and calibrate one row/seed; the numbers the table needs (or the failure)."""
-    name, seed, duration, workdir = job
+    number, name, row, seed, duration, workdir = job
     from sclam_ros.core.estimator import CalibrationError, calibrate_keyframes
     from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
     from sclam_ros.io.recording import read_recording
     from sclam_ros.sim import simulate
 
-    bag = Path(workdir) / f"row{list(ROWS).index(name)}_seed{seed}"
-    truth = simulate(bag, duration=duration, seed=seed, overwrite=True, **ROWS[name])
+    bag = Path(workdir) / f"row{number}_seed{seed}"
+    truth = simulate(bag, duration=duration, seed=seed, overwrite=True, **row)
     params = SclamParams.from_yaml(bag / "params.yaml")
     start = time.perf_counter()
     try:
@@ -133,10 +142,16 @@ def main():
     ap.add_argument("--jobs", type=int, default=2, help="processes at once (one per core)")
     ap.add_argument("--rows", nargs="+", type=int, default=None,
                     help="row numbers to run (0-based, in the order listed in ROWS)")
+    ap.add_argument("--factors", action="store_true",
+                    help="instead of the sensors, the URG-04LX-like row one factor at a time")
     args = ap.parse_args()
+    if args.factors:
+        ROWS.clear()
+        ROWS.update(FACTOR_ROWS)
     names = [n for i, n in enumerate(ROWS) if args.rows is None or i in args.rows]
     workdir = tempfile.mkdtemp(prefix="sclam_sensor_matrix_")
-    jobs = [(name, seed, args.duration, workdir) for name in names for seed in range(1, args.seeds + 1)]
+    jobs = [(number, name, ROWS[name], seed, args.duration, workdir)
+            for number, name in enumerate(names) for seed in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_one, jobs))
     for r in results:

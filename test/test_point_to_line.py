@@ -92,7 +92,7 @@ def test_outdoors_only_confirmed_matches_are_used():
             guess = se2.between(poses[i], poses[i - 1]) if i else None
             points = scan_to_points(scan)
             if refine:
-                match, z = refined_matcher.add_scan(scan, guess, points)
+                match, z, _ = refined_matcher.add_scan(scan, guess, points)
             else:
                 match = matcher.add_scan(scan, guess, points)
                 z = None if match is None else match.z
@@ -180,3 +180,25 @@ def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():
             matcher._remember_reference(scan, scan_to_points(scan))
         assert matcher.wide_normals == wide
         assert len(matcher.range_noises) == 12
+
+
+def _walls(segments, spacing=0.02):
+    return np.concatenate([np.linspace(a, b, int(np.hypot(*np.subtract(b, a)) / spacing))
+                           for a, b in segments])
+
+
+def test_refinement_covariance_is_large_where_the_walls_do_not_fix_the_motion():
+    """Down a corridor (two walls along x) the lines fix y and the heading but not x: the
+    refinement's covariance says so, and in a closed room it does not."""
+    rng = np.random.default_rng(5)
+    corridor = [((-3.0, -1.0), (3.0, -1.0)), ((-3.0, 1.0), (3.0, 1.0))]
+    room = corridor + [((-3.0, -1.0), (-3.0, 1.0)), ((3.0, -1.0), (3.0, 1.0))]
+    motion = np.array([0.05, 0.0, 0.0])
+    for segments, closed in ((corridor, False), (room, True)):
+        reference = point_to_line.ReferenceScan.from_points(_walls(segments))
+        scan = se2.transform_points(se2.inverse(motion), _walls(segments))
+        scan = scan + rng.normal(0.0, 0.005, scan.shape)
+        z, used, covariance = point_to_line.refine_with_covariance(reference, scan, motion)
+        assert used > 200 and np.all(np.linalg.eigvalsh(covariance) > 0)
+        ratio = covariance[0, 0] / covariance[1, 1]
+        assert (ratio < 10.0) if closed else (ratio > 100.0)

@@ -166,7 +166,7 @@ def test_matches_without_lines_are_counted_not_used():
         points = np.column_stack([trees - [0.03 * i, 0.0], np.zeros(len(trees))])  # laser frame
         scan = Scan(stamp=0.1 * i, ranges=np.hypot(points[:, 0], points[:, 1]), angle_min=-np.pi,
                     angle_increment=2 * np.pi / len(trees), range_min=0.0, range_max=30.0)
-        match, z = matcher.add_scan(scan, np.array([0.03, 0.0, 0.0]), points)
+        match, z, _ = matcher.add_scan(scan, np.array([0.03, 0.0, 0.0]), points)
         matches += match is not None
         assert z is None
     assert point_to_line.ReferenceScan.from_points(points) is None

@@ -123,11 +123,11 @@ class Frontend:
         scan = thinned(scan, self.params.scan_max_beams)
         config = self.matcher.config
         points = scan_to_points(scan, config.min_range, config.max_range)
-        match, z = self.refined_matcher.add_scan(scan, guess, points)
+        match, z, information = self.refined_matcher.add_scan(scan, guess, points)
         if z is not None:
             registration.match_from = int(match.index_from)
             registration.laser_motion = z
-            registration.laser_information = np.asarray(match.information, float)
+            registration.laser_information = information
         return registration
 
     def _keyframe(self, synced) -> Keyframe:
