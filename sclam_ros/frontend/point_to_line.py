@@ -157,6 +157,7 @@ class RefinedScanMatcher:
         # NOISE_SCANS reference scans, then fixed: ReferenceScan.from_points fits wide.
         self.wide_normals = False
         self.range_noises = []
+        self._wide_noise = None  # their median while wide_normals, for from_points(noise=)
         self._reference = None  # ReferenceScan of the last scan the matcher gave a pose
         self._reference_index = None  # its index in the matcher's numbering
         # Matches not used, by reason: "no_lines" (the reference scan has too few points on
@@ -196,11 +197,12 @@ class RefinedScanMatcher:
         """The scan just posed is the next match's reference; the first NOISE_SCANS judge
         the laser's noise, and with it how the reference's lines are fitted."""
         noise = range_noise(scan) if len(self.range_noises) < NOISE_SCANS else None
-        if noise is not None:
+        if noise is not None:  # the judgement changes only here, so it is made only here
             self.range_noises.append(noise)
-            self.wide_normals = bool(NOISY_RANGE <= np.median(self.range_noises) <= NOT_A_NOISE)
-        self._reference = ReferenceScan.from_points(
-            points, float(np.median(self.range_noises)) if self.wide_normals else None)
+            median = float(np.median(self.range_noises))
+            self.wide_normals = NOISY_RANGE <= median <= NOT_A_NOISE
+            self._wide_noise = median if self.wide_normals else None
+        self._reference = ReferenceScan.from_points(points, self._wide_noise)
 
 
 def _confirmed(reference, points, z_icp):
