@@ -11,7 +11,8 @@ two extra files beside them that rosbag2 readers ignore:
 
 Topics: ``/joint_states`` (sensor_msgs/JointState, cumulative ticks),
 ``/scan`` (sensor_msgs/LaserScan, frame "laser"), ``/ground_truth/odom``
-(nav_msgs/Odometry odom → base_link at the encoder rate, true time stamps; the
+(nav_msgs/Odometry odom → base_link at the encoder rate, or at the control rate when
+the encoders are slower, true time stamps; the
 odom frame is the robot's start pose, whose world pose truth.json gives as
 ``odom_origin_in_world``).
 Record time = header stamp for every message.
@@ -158,13 +159,24 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     return truth_doc
 
 
+def _truth_times(encoder_times, duration):
+    """When the ground truth is recorded: with the encoders, or at CONTROL_RATE when they are
+    slower. Users of the truth interpolate it at scan stamps; on a 2 Hz grid that cuts the
+    corners of every turn (measured: scan matches looked 0.2 % long against it).
+    """
+    if len(encoder_times) > 1 and np.median(np.diff(encoder_times)) <= 1.0 / CONTROL_RATE + 1e-9:
+        return encoder_times
+    return np.arange(int(np.floor(duration * CONTROL_RATE + 1e-9)) + 1) / CONTROL_RATE
+
+
 def _write_bag(out, storage, trajectory, encoders, scans, effect_set: EffectSet) -> None:
     """All messages in record-time order (= header stamp order)."""
     encoder_stamps = START_TIME + effect_set.encoder_stamp(encoders.times)
-    truth_stamps = START_TIME + encoders.times
+    truth_times = _truth_times(encoders.times, trajectory.duration)
+    truth_stamps = START_TIME + truth_times
     # REP-105: the odom frame is where the robot started, so the truth starts at identity.
-    truth_poses = se2.between(trajectory.pose_at(encoders.times), trajectory.pose_at(0.0))
-    truth_twists = trajectory.twist_at(encoders.times)
+    truth_poses = se2.between(trajectory.pose_at(truth_times), trajectory.pose_at(0.0))
+    truth_twists = trajectory.twist_at(truth_times)
     # (record time, kind, index); kind orders simultaneous messages deterministically.
     events = [(t, 0, i) for i, t in enumerate(encoder_stamps)]
     events += [(t, 1, i) for i, t in enumerate(truth_stamps)]
