@@ -48,6 +48,7 @@ ROWS = {
     "25 Hz, 180°, 361 b, 20 m, 1 cm (LMS-type)": dict(
         scan_rate=25.0, beams=361, laser=dict(fov=180 * DEG)),
     "default laser, odometry 2 Hz": dict(encoder_rate=2.0),
+    "default laser, odometry 1 Hz": dict(encoder_rate=1.0),
     "outdoor, default laser": dict(scene="outdoor"),
 }
 # --factors: the URG-04LX-like row with one of its factors set back to the default laser's.

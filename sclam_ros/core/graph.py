@@ -75,6 +75,9 @@ class GraphInputs:
     laser_z: np.ndarray  # (m_l, 3)
     laser_info: np.ndarray  # (m_l, 3, 3)
     odo_parts: Optional[np.ndarray] = None  # (m_o, n, 2) per-scan increments, zero-padded
+    # (m_o, 2) rad²: variance of each increment from interpolating the encoders at its two
+    # ends (Keyframe.angle_variance); None: the increments were sampled, not interpolated
+    odo_variance: Optional[np.ndarray] = None
 
     @classmethod
     def from_keyframes(cls, keyframes, first_index=None):
@@ -94,6 +97,7 @@ class GraphInputs:
                 parts[row, : len(chunk)] = chunk
         return cls(
             odo_parts=parts,
+            odo_variance=_increment_variance(keyframes, first),
             stamps=np.array([kf.stamp for kf in keyframes]),
             odo_from=np.array([o[0] for o in odo], int),
             odo_dphi=np.array([o[1] for o in odo], float).reshape(-1, 2),
@@ -108,12 +112,40 @@ class GraphInputs:
         return len(self.stamps)
 
 
+def _increment_variance(keyframes, first):
+    """(m_o, 2) interpolation variance of each odometry edge's increments, in the order of
+    GraphInputs.odo_dphi, or None when no keyframe's angles were interpolated. An increment
+    is the difference of the angles at its two ends: their variances add (the ends of the
+    parts of a merged edge cancel, so only its own two ends count)."""
+    if all(getattr(kf, "angle_variance", None) is None for kf in keyframes):
+        return None
+    of_index = {kf.index: kf.angle_variance for kf in keyframes}
+
+    def at(index):
+        v = of_index.get(index)
+        return np.zeros(2) if v is None else np.asarray(v, float)
+
+    rows = [at(kf.index - 1) + at(kf.index) for kf in keyframes
+            if kf.dphi is not None and kf.index - first - 1 >= 0]
+    return np.array(rows, float).reshape(-1, 2)
+
+
+def odometry_covariance(inputs: GraphInputs, params, k) -> np.ndarray:
+    """(m_o, 3, 3) covariance of the odometry edges' motions K(u, k): the wheels' noise
+    model (params.wheel_noise, lateral_noise, the encoder's quantisation) plus the
+    interpolation variance of the increments (GraphInputs.odo_variance)."""
+    return kinematics.motion_covariance(inputs.odo_dphi, k, params.wheel_noise,
+                                        encoder_variance_floor(params), params.lateral_noise,
+                                        inputs.odo_variance)
+
+
 def merged_keyframe(segment, index):
     """One keyframe standing for a run of consecutive ones (see merge_keyframes): wheel
     increments kept per part (the odometry factor composes their arcs) and summed, chained
     scan matches composed with their covariances added. The edge starts at keyframe
     ``index − 1``."""
-    kf = Keyframe(index, segment[-1].stamp, segment[-1].wheel_angles)
+    kf = Keyframe(index, segment[-1].stamp, segment[-1].wheel_angles,
+                  angle_variance=segment[-1].angle_variance)
     if all(s.dphi is not None for s in segment):
         kf.dphi_parts = np.array([s.dphi for s in segment])
         kf.dphi = kf.dphi_parts.sum(axis=0)
@@ -164,7 +196,8 @@ def merge_keyframes(keyframes, interval: float) -> list:
     """
     if interval <= 0 or len(keyframes) < 2:
         return list(keyframes)
-    merged = [Keyframe(0, keyframes[0].stamp, keyframes[0].wheel_angles)]
+    merged = [Keyframe(0, keyframes[0].stamp, keyframes[0].wheel_angles,
+                       angle_variance=keyframes[0].angle_variance)]
     segment = []  # keyframes since the last merged one, all chained
 
     def flush():
@@ -249,14 +282,11 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
         # Radii and wheel base are physical lengths: the solver never steps through zero.
         lower={"odometry": MIN_ODOMETRY_FRACTION * calibration[:3]},
     )
-    odometry_covariance = kinematics.motion_covariance(
-        inputs.odo_dphi, nominal[:3], params.wheel_noise, encoder_variance_floor(params),
-        params.lateral_noise,
-    )
+    odometry_cov = odometry_covariance(inputs, params, nominal[:3])
     sigma = prior_sigmas(nominal)
     factor_list = [
         factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
-                               np.linalg.inv(odometry_covariance), parts=inputs.odo_parts),
+                               np.linalg.inv(odometry_cov), parts=inputs.odo_parts),
         factors.LaserFactor(inputs.laser_from, inputs.laser_to, inputs.laser_z, inputs.laser_info),
         factors.PriorFactor("odometry", [0], [nominal[:3]], np.diag(sigma[:3] ** -2.0),
                             angular=(False, False, False), name="calibration_prior"),

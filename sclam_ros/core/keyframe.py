@@ -18,6 +18,9 @@ class Keyframe:
     index: int  # 0, 1, 2, ... in stamp order
     stamp: float  # s
     wheel_angles: np.ndarray  # (2,) rad, cumulative, at the scan stamp
+    # (2,) rad²: variance of wheel_angles from interpolating the encoders at the stamp
+    # (frontend/sync.py; None: the angles were sampled there)
+    angle_variance: Optional[np.ndarray] = None
     dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
     dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to

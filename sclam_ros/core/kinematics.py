@@ -122,18 +122,22 @@ def forward_composed(parts, k):
     return motion, jac
 
 
-def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0):
+def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
+                      increment_variance=None):
     """Covariance (..., 3, 3) of K(u, k): wheel-angle noise plus sideways slip.
 
     Each wheel's increment has variance wheel_noise² · |dφ| + floor (slip and backlash
     accumulate with the angle turned, a random walk; the floor is the encoder's
-    quantisation). Wheel noise alone is rank 2: the model cannot move sideways. Real
+    quantisation), plus `increment_variance` (..., 2) where the increments themselves are
+    uncertain (interpolated between slow encoder samples). Wheel noise alone is rank 2: the model cannot move sideways. Real
     tyres do slip sideways a little, so a lateral variance lateral_noise² · |s| (m² per m
     travelled) makes the edge full rank, and keeps a robot standing still positive
     definite.
     """
     dphi = np.asarray(dphi, float)
     var = wheel_noise**2 * np.abs(dphi) + floor
+    if increment_variance is not None:
+        var = var + np.asarray(increment_variance, float)
     ju = jacobian_u(dphi, k)
     cov = np.einsum("...ij,...j,...kj->...ik", ju, var, ju)
     s, _ = arc_length_and_rotation(dphi, k)

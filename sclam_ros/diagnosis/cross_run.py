@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.core import kinematics
 from sclam_ros.diagnosis.diagnose import Fit, edge_nll, paired_edges
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
@@ -81,9 +80,7 @@ def predict_error(model: FittedModel, keyframes, params) -> np.ndarray:
     effects = [LIBRARY[n](data) for n in model.effects]
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     # The stated odometry noise at nominal k, exactly as diagnose scores its held-out blocks.
-    odo_cov = kinematics.motion_covariance(inputs.odo_dphi, nominal[:3], params.wheel_noise,
-                                           graph_mod.encoder_variance_floor(params),
-                                           params.lateral_noise)
+    odo_cov = graph_mod.odometry_covariance(inputs, params, nominal[:3])
     fit = Fit(problem=None, values=model.values, scales=model.scales, cost=float("nan"))
     return edge_nll(fit, effects, inputs, paired_edges(inputs), odo_cov)
 

@@ -105,7 +105,9 @@ def _subset(inputs, keep_pose_edges):
     return graph_mod.GraphInputs(inputs.stamps, inputs.odo_from[o], inputs.odo_dphi[o],
                                  inputs.laser_from[la], inputs.laser_to[la], inputs.laser_z[la],
                                  inputs.laser_info[la],
-                                 odo_parts=None if inputs.odo_parts is None else inputs.odo_parts[o])
+                                 odo_parts=None if inputs.odo_parts is None else inputs.odo_parts[o],
+                                 odo_variance=(None if inputs.odo_variance is None
+                                               else inputs.odo_variance[o]))
 
 
 def _fit_base(inputs, params, nominal, observability, poses=None) -> Fit:
@@ -483,9 +485,7 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
     data = EffectData.from_keyframes(keyframes, inputs.stamps, positions=base.values["poses"][:, :2])
     wheel_angles = np.array([kf.wheel_angles for kf in merged], float).reshape(-1, 2)
     edges = paired_edges(inputs)
-    odo_cov = kinematics.motion_covariance(inputs.odo_dphi, nominal[:3], params.wheel_noise,
-                                           graph_mod.encoder_variance_floor(params),
-                                           params.lateral_noise)
+    odo_cov = graph_mod.odometry_covariance(inputs, params, nominal[:3])
     regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0], base.values["poses"])
     odo_pos = {int(a): n for n, a in enumerate(inputs.odo_from)}
     edge_reg = np.array([odo_pos[int(a)] for a in edges.pose_i], int)

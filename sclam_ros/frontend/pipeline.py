@@ -133,7 +133,8 @@ class Frontend:
     def _keyframe(self, synced) -> Keyframe:
         index = self._count
         self._count += 1
-        kf = Keyframe(index, synced.scan.stamp, np.array(synced.wheels.angles, float))
+        kf = Keyframe(index, synced.scan.stamp, np.array(synced.wheels.angles, float),
+                      angle_variance=np.array(synced.wheels.variance, float))
         if self._previous is not None:
             increment, reason = increment_between(self._previous, synced, self.stream)
             if increment is not None:

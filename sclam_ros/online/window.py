@@ -146,7 +146,8 @@ class KeyframeMerger:
 
     def add(self, kf) -> list:
         if self._last is None:
-            self._last = Keyframe(self._count, kf.stamp, kf.wheel_angles)
+            self._last = Keyframe(self._count, kf.stamp, kf.wheel_angles,
+                                  angle_variance=kf.angle_variance)
             self._count += 1
             return [self._last]
         out = []
