@@ -37,6 +37,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress output")
 
 
+def _likelihood_ratio(evidence) -> str:
+    """The likelihood ratio the effect was judged by, against its penalty."""
+    text = f"LR {evidence['likelihood_ratio']:.1f} vs BIC {evidence['bic_penalty']:.1f}"
+    if "heldout_penalty" in evidence:  # a searched effect (a region)
+        text += (f", held-out LR {evidence['heldout_likelihood_ratio']:.1f} vs "
+                 f"{evidence['heldout_penalty']:.1f}")
+    return text
+
+
 def format_summary(report) -> str:
     lines = [f"held-out error: base {report['base']['error']:.4f}, "
              f"extended {report['extended']['error']:.4f}"]
@@ -52,7 +61,7 @@ def format_summary(report) -> str:
         lines.append(f"  {'SELECTED ' if e['selected'] else 'rejected '}{e['name']:<16}"
                      f"{e['value']:.4g}{sigma} {e['evidence']['units']}  "
                      f"(held-out gain {e['evidence']['heldout_gain_per_edge']:+.4f}/edge, "
-                     f"LR {e['evidence']['likelihood_ratio']:.1f} vs BIC {e['evidence']['bic_penalty']:.1f})")
+                     f"{_likelihood_ratio(e['evidence'])})")
     if report["unexplained"]:
         lines.append("unexplained structure:")
         lines += [f"  {u['component']} vs {u['regressor']}: strength {u['strength']:.2f}"

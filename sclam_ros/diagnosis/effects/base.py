@@ -91,6 +91,10 @@ class ModelEffect:
     kind = "odometry"
     # 1σ of the weak zero-mean prior that keeps an unexcited effect well-posed.
     prior_sigma = 1.0
+    # Whether part of the effect is found by a search over the data (a region's place):
+    # its held-out likelihood ratio must then clear a penalty too, not only its in-sample
+    # one (which the search overfits).
+    searched = False
 
     def __init__(self, data: EffectData):
         self.data = data
