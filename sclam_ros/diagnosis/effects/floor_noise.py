@@ -4,13 +4,14 @@ One region of the map, a rectangle found from the residuals, whose odometry nois
 is higher than the rest's. Only the noisier side is searched: the effect is a floor
 the wheels slip more on, and a quieter rectangle is the complement of a noisy region
 that a rectangle fits worse (on one room's carpet, 2 of 5 seeds found a quieter
-rectangle elsewhere, ratio ≈ 0.5, when both sides were searched). The rectangle is searched over a 0.5 m grid laid along the
-map's own axes (the headings of straight driving, modulo 90°: walls, and so rooms and
-their floors, run along them; the odometry frame starts at an arbitrary heading). For
-every rectangle holding at least MIN_EDGES edges, and leaving as many outside, the
-maximum-likelihood factor on the odometry covariance is taken inside and outside; the
-rectangle with the largest likelihood gain whose inside factor is the larger wins. Its sides are then placed halfway
-between its outermost edges and the nearest edges left out, so a held-out pass through
+rectangle elsewhere, ratio ≈ 0.5, when both sides were searched). The rectangle is
+searched over a 0.5 m grid laid along the map's own axes (the headings of straight
+driving, modulo 90°: walls, and so rooms and their floors, run along them; the odometry
+frame starts at an arbitrary heading). For every rectangle holding at least MIN_EDGES
+edges, and leaving as many outside, the maximum-likelihood factor on the odometry
+covariance is taken inside and outside; the rectangle with the largest likelihood gain
+whose inside factor is the larger wins. Its sides are then placed halfway between its
+outermost edges and the nearest edges left out, so a held-out pass through
 the same room falls inside.
 
 The factors are relative to the one factor of all edges together, so the effect models
