@@ -62,6 +62,11 @@ def format_summary(report) -> str:
                      f"{e['value']:.4g}{sigma} {e['evidence']['units']}  "
                      f"(held-out gain {e['evidence']['heldout_gain_per_edge']:+.4f}/edge, "
                      f"{_likelihood_ratio(e['evidence'])})")
+        stand_in = e["evidence"].get("stand_in_for")
+        if stand_in and not e["selected"]:
+            lines.append(f"    {stand_in['regressor']} explains more of what it would fit "
+                         f"({stand_in['fraction_explained']:.0%} against "
+                         f"{stand_in['signature_fraction']:.0%}): it would only stand in for it")
     if report["unexplained"]:
         lines.append("unexplained structure:")
         lines += [f"  {u['component']} vs {u['regressor']}: strength {u['strength']:.2f}"

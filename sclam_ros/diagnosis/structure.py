@@ -87,16 +87,17 @@ def significant(tests: list) -> list:
     return sorted(keep, key=lambda t: -t["strength"])
 
 
-def name_structure(residuals: dict, regs: dict, edge_index, motion, top: int = 3) -> list:
-    """The regressors that explain most of the structure left in the odometry, best first.
+def regressor_shares(residuals: dict, regs: dict, edge_index, motion) -> tuple:
+    """({regressor name: the fraction of the odometry's structure it explains}, the
+    components with structure): a regressor's fraction is its mean adjusted R² over the
+    components with significant structure ({} when none has any).
 
     residuals: "odometry.x/y/theta" -> (m,) whitened; motion: (m_o, 3) each edge's
-    predicted motion. Over the components with significant structure, each regressor f
-    is fitted per component in two forms at once, an additive error (∝ f) and a scale
-    error (∝ f times the component's own motion), and its fraction explained is the mean
-    adjusted R² over those components. One cause shows in several components: a radius
-    growing with speed scales the whole motion by v², which is v³ in x and v²·ω in θ; in
-    additive form alone θ's v²·ω looks like v·ω and named the wrong cause."""
+    predicted motion. Each regressor f is fitted per component in two forms at once, an
+    additive error (∝ f) and a scale error (∝ f times the component's own motion). One
+    cause shows in several components: a radius growing with speed scales the whole
+    motion by v², which is v³ in x and v²·ω in θ; in additive form alone θ's v²·ω looks
+    like v·ω and named the wrong cause."""
     tests, axis = [], {"odometry.x": 0, "odometry.y": 1, "odometry.theta": 2}
     for comp, res in residuals.items():
         own = motion[edge_index, axis[comp]][:, None]
@@ -107,13 +108,18 @@ def name_structure(residuals: dict, regs: dict, edge_index, motion, top: int = 3
             tests.append({"component": comp, "regressor": name, "fraction_explained": max(r2_adj, 0.0),
                           "strength": float(np.sqrt(r2)), "p_value": p})
     structured = sorted({t["component"] for t in significant(tests)})
-    if not structured:
-        return []
     share = {}
     for t in tests:
         if t["component"] in structured:
             share[t["regressor"]] = share.get(t["regressor"], 0.0) + (
                 t["fraction_explained"] / len(structured))
+    return share, structured
+
+
+def name_structure(residuals: dict, regs: dict, edge_index, motion, top: int = 3) -> list:
+    """The regressors that explain most of the structure left in the odometry, best first
+    (regressor_shares), with the components that have structure."""
+    share, structured = regressor_shares(residuals, regs, edge_index, motion)
     best = sorted(share.items(), key=lambda kv: -kv[1])[:top]
     return [{"regressor": name, "fraction_explained": float(f), "components": structured}
             for name, f in best]

@@ -95,6 +95,11 @@ class ModelEffect:
     # its held-out likelihood ratio must then clear a penalty too, not only its in-sample
     # one (which the search overfits).
     searched = False
+    # The regressors (diagnosis/regressors.py) that describe this effect's footprint in the
+    # odometry residuals. When another regressor explains more of the structure than these
+    # do, the effect would only stand in for that cause and is not selected (_evaluate).
+    # Empty: not checked.
+    signature: tuple = ()
 
     def __init__(self, data: EffectData):
         self.data = data

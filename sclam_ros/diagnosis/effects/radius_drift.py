@@ -17,6 +17,8 @@ class RadiusDrift(ModelEffect):
     units = "fraction/hour"
     doc = "radii change linearly in time: (a_left, a_right)"
     prior_sigma = 10.0
+    # A drift in time is also one with the distance driven (the robot drives on).
+    signature = ("time", "distance")
 
     def adjust_k(self, k, p, i, j):
         t = self.data.stamps
