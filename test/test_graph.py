@@ -33,6 +33,25 @@ def test_merging_adds_wheel_angles_and_composes_scan_matches():
     assert np.allclose(np.linalg.inv(merged[1].laser_information), expected)
 
 
+def test_interpolation_variance_of_a_merged_edge_is_that_of_its_two_ends():
+    """An increment is the difference of the interpolated angles at its ends: merged over
+    several keyframes, the inner ends cancel, and its variance is the first and the last
+    end's, not the sum over the parts."""
+    from sclam_ros.core.graph import GraphInputs
+
+    rng = np.random.default_rng(1)
+    kfs = chain(21, rng)
+    for kf in kfs:
+        kf.angle_variance = np.array([1.0, 2.0]) * (kf.index + 1)
+    merged = merge_keyframes(kfs, 0.5)
+    inputs = GraphInputs.from_keyframes(merged)
+    # Merged keyframe m ends at scan 5m; its edge starts where keyframe m − 1 ends.
+    ends = [5 * m for m in range(len(merged))]
+    expected = [np.array([1.0, 2.0]) * (a + 1 + b + 1) for a, b in zip(ends[:-1], ends[1:])]
+    np.testing.assert_allclose(inputs.odo_variance, expected)
+    assert GraphInputs.from_keyframes(chain(5, rng)).odo_variance is None  # sampled angles
+
+
 def test_chained_covariance_matches_a_simulated_ma1_chain():
     """Errors that share a scan, e = n_i + θ n_{i−1} with θ = −0.5 (lag-1 correlation
     θ / (1 + θ²) = −0.4): the variance of their sum, sampled, against the formula."""
