@@ -258,13 +258,17 @@ class _Models:
             self.whole[key] = (fit, noise, cost)
         return self.whole[key]
 
+    def odometry_residuals(self, names):
+        """(Fit, {odometry component: whitened residuals}) of the mechanical effects of
+        `names` fitted on the whole run."""
+        fit = self.fit_whole(names)[0]
+        residuals = _component_residuals(fit.problem, fit.values, self.edges)
+        return fit, {c: r for c, r in residuals.items() if c.startswith("odometry.")}
+
     def shares(self, names) -> dict:
         """regressor -> fraction of the odometry residuals' structure it explains, left by
         the mechanical effects of `names` fitted on the whole run ({} if none is left)."""
-        fit = self.fit_whole(names)[0]
-        residuals = {c: r for c, r in _component_residuals(fit.problem, fit.values,
-                                                           self.edges).items()
-                     if c.startswith("odometry.")}
+        fit, residuals = self.odometry_residuals(names)
         motion = kinematics.forward(self.inputs.odo_dphi, fit.values["odometry"][0])
         return regressor_shares(residuals, self.regs, self.edge_reg, motion)[0]
 
@@ -275,10 +279,7 @@ class _Models:
         and the laser residuals carry a dependence on the change of wheel speed / the
         angular acceleration on some routes with no effect at all (simulated clean runs,
         seeds 2 and 4 of bench/diagnose_effects.py: the scan matcher's, not the wheels')."""
-        fit = self.fit_whole(names)[0]
-        residuals = {c: r for c, r in _component_residuals(fit.problem, fit.values,
-                                                           self.edges).items()
-                     if c.startswith("odometry.")}
+        residuals = self.odometry_residuals(names)[1]
         tests = residual_tests(residuals, self.regs, {c: self.edge_reg for c in residuals})
         return [t for t in significant(tests) if t["regressor"] != "lag"]
 
@@ -347,12 +348,12 @@ def _evaluate(models: _Models, selected, name, n_edges) -> dict:
     # A variance model fitted over an unexplained mean takes the mean's squared error for
     # noise (a radius growing with speed passed for noise growing with the turn rate), so
     # noise effects wait until no mean structure is left.
-    stand_in = _stand_in(models, selected, candidate)
+    mechanical = [n for n in selected if LIBRARY[n].kind != "noise"]
+    stand_in = _stand_in(models, mechanical, candidate)
     blocked = []
     if candidate.kind == "noise":
         blocked = [f"{t['component']} vs {t['regressor']}"
-                   for t in models.mean_structure([n for n in selected
-                                                   if LIBRARY[n].kind != "noise"])]
+                   for t in models.mean_structure(mechanical)]
     return {"name": name, "value": value, "sigma": sigma, "params": params,
             "added_to": list(selected), "gain": gain, "lr": lr, "bic": float(bic),
             "heldout_lr": heldout_lr, "heldout_penalty": heldout_penalty,
@@ -366,16 +367,16 @@ def _evaluate(models: _Models, selected, name, n_edges) -> dict:
                        and stand_in is None)}
 
 
-def _stand_in(models: _Models, selected, candidate):
+def _stand_in(models: _Models, mechanical, candidate):
     """The regressor a mean effect would only stand in for, or None: one outside its
-    signature that explains more of the odometry's structure (left by the mechanical
-    effects selected) than its signature does. A wheel radius growing with speed, on a
+    signature that explains more of the odometry's structure (left by the selected
+    mechanical effects) than its signature does. A wheel radius growing with speed, on a
     drive whose speed changes over the run, looks like a radius drifting in time: on 2 of
     5 simulated runs radius_drift passed every other test, while the speed explained
     1.2-1.4 times what the time did (a true drift: the best other regressor 0.45 times)."""
     if not candidate.signature:
         return None
-    shares = models.shares([n for n in selected if LIBRARY[n].kind != "noise"])
+    shares = models.shares(mechanical)
     if not shares:
         return None
     own = max(shares.get(name, 0.0) for name in candidate.signature)

@@ -73,7 +73,6 @@ class FloorNoise(ModelEffect):
     # the noisy floor, held-out gain −0.047 nats/edge at a likelihood ratio of 40.)
     COVERAGE = 1.0  # m
     LEVELS = np.linspace(np.log(1 / 8), np.log(8), 31)  # factors scanned (then refined)
-    NOISIER_ONLY = True
 
     def __init__(self, data):
         super().__init__(data)
@@ -100,7 +99,7 @@ class FloorNoise(ModelEffect):
         self.angle = principal_angle(self.data.positions)
         u = self._aligned(pose_i, pose_j)
         best = _best_rectangle(u, nll_profile(nll, len(u), self.LEVELS), self.CELL,
-                               self.MIN_EDGES, self.NOISIER_ONLY)
+                               self.MIN_EDGES)
         if best is None:
             return
         self.lo, self.hi = _with_margins(u, best)
@@ -139,8 +138,9 @@ class FloorNoise(ModelEffect):
         }}
 
 
-def _best_rectangle(u, profile, cell, min_edges, noisier_only=False):
-    """(edges inside (m,) bool) of the grid rectangle with the largest likelihood gain.
+def _best_rectangle(u, profile, cell, min_edges):
+    """(edges inside (m,) bool) of the grid rectangle, noisier inside than outside, with
+    the largest likelihood gain.
 
     profile (m, G): each edge's NLL at G common factors. With prefix sums over the grid
     cells, a rectangle's NLL at every factor is four look-ups, so all rectangles of the
@@ -169,8 +169,7 @@ def _best_rectangle(u, profile, cell, min_edges, noisier_only=False):
             continue
         outside = total - inside
         gain = total.min() - inside.min(axis=2) - outside.min(axis=2)
-        if noisier_only:
-            ok &= inside.argmin(axis=2) > outside.argmin(axis=2)
+        ok &= inside.argmin(axis=2) > outside.argmin(axis=2)
         gain[~ok] = -np.inf
         k = np.unravel_index(np.argmax(gain), gain.shape)
         if gain[k] > best_gain:
