@@ -5,13 +5,15 @@ scene (the office, or open ground with trees, poles and cars) and an odometry ra
 simulated with --seeds seeds (PowerBot, --duration s, the default drive) and calibrated as
 `sclam calibrate` does. Per row:
 
-  - error per parameter: the mean over seeds (bias) and the RMS, in % of the true value for
-    the radii and the base, mm and degrees for the laser;
+  - error per parameter: the mean over seeds (bias) with its standard error (how far the
+    seeds' luck can move the mean: a row passes 0.1 % only if its mean is clear of it by
+    that much), and the RMS, in % of the true value for the radii and the base, mm and
+    degrees for the laser;
   - RMS error/σ per parameter (1 when the reported σ is honest; the acceptance band is
     0.7-1.4);
   - scale of the scan matches: Σ z·z_true / Σ |z_true|² over every laser edge of the graph
     (translation), z_true from the simulator's ground truth and the true mount: 1.0000 when
-    matched displacements are neither short nor long;
+    matched displacements are neither short nor long (± its standard error over seeds);
   - calibration cost per second of recording (reading, matching, solving; one process per
     core, --jobs processes at once).
 
@@ -140,16 +142,27 @@ def row_cells(name, results):
                        math.degrees(r["error"]["laser_yaw"])] for r in ok])
     z = np.array([[r["z"][k] for k in CALIBRATION_KEYS] for r in ok])
     rms_z = np.sqrt(np.mean(z ** 2, axis=0))
+    scales = np.array([r["scale"] for r in ok])
     return [
         name, f"{len(ok)}/{len(results)}",
         " ".join(f"{m:+.3f}" for m in rel.mean(0)),
+        " ".join(f"{v:.3f}" for v in _standard_error(rel)),
         " ".join(f"{v:.3f}" for v in np.sqrt(np.mean(rel ** 2, axis=0))),
         " ".join(f"{v:.2f}" for v in np.sqrt(np.mean(laser[:, :2] ** 2, axis=0)))
         + f" / {np.sqrt(np.mean(laser[:, 2] ** 2)):.3f}",
         " ".join(f"{v:.2f}" for v in rms_z),
-        f"{np.mean([r['scale'] for r in ok]):.4f}",
+        f"{scales.mean():.4f} ± {_standard_error(scales[:, None])[0]:.4f}",
         f"{1e3 * np.median([r['cost'] for r in ok]):.0f}",
     ]
+
+
+def _standard_error(samples):
+    """Standard error of the mean of each column of (seeds, k) samples: how far a row's mean
+    error may be from its bias by the luck of its seeds (0 with one seed)."""
+    samples = np.asarray(samples, float)
+    if len(samples) < 2:
+        return np.zeros(samples.shape[1])
+    return samples.std(axis=0, ddof=1) / math.sqrt(len(samples))
 
 
 def main():
@@ -179,7 +192,8 @@ def main():
     print(f"PowerBot, {args.seeds} seeds × {args.duration:.0f} s per row; errors against the "
           f"simulator's truth" + ("; the true calibration as nominal" if args.true_nominal else ""))
     print(table([row_cells(n, [r for r in results if r["name"] == n]) for n in names],
-                ["laser / scene", "calibrated", "mean error r_l r_r b %", "RMS error r_l r_r b %",
+                ["laser / scene", "calibrated", "mean error r_l r_r b %", "its standard error %",
+                 "RMS error r_l r_r b %",
                  "RMS laser x y mm / yaw °", "RMS err/σ r_l r_r b x y yaw", "match scale",
                  "ms per s recorded"]))
 

@@ -36,3 +36,25 @@ def test_a_chunk_read_from_the_middle_matches_the_same_scans():
     # After the chunk's rate sample and the first grid scan that closes it.
     after_warmup = set(chunk[RATE_SAMPLE + 2:])
     assert after_warmup and after_warmup <= set(whole)
+
+
+@pytest.mark.parametrize("encoder_rate", [1.0, 2.0])
+def test_slow_encoders_get_the_scan_after_each_sample_matched(encoder_rate):
+    """Odometry at 1-2 Hz, a 10 Hz laser whose scans come 13 ms after the samples: the scan
+    right after every sample is matched (its wheel angles are 13 ms of straight line from a
+    sample), and between samples the scans are no closer than half the match period."""
+    period, sample_period = 0.1, 1.0 / encoder_rate
+    decimator = ScanDecimator()
+    kept, samples = [], []
+    for i in range(600):
+        stamp = 1.7e9 + 0.013 + period * i
+        samples = [t for t in 1.7e9 + sample_period * np.arange(int(60 * encoder_rate) + 1)
+                   if t <= stamp]
+        if decimator.accept(stamp, samples[-1], sample_period):
+            kept.append(stamp)
+    after = kept[RATE_SAMPLE + 1:]
+    sample_times = 1.7e9 + sample_period * np.arange(3, int(60 * encoder_rate))
+    for t in sample_times[sample_times > after[0]]:
+        assert any(abs(k - (t + 0.013)) < 1e-6 for k in after), t
+    assert np.diff(after).min() >= 0.5 * MATCH_PERIOD - 1e-6
+    assert decimator.skipped == 600 - len(kept)

@@ -76,3 +76,39 @@ def test_a_missing_scan_match_is_not_bridged():
     # The interval containing scan 7 carries no laser edge; all others do.
     no_laser = [m for m in merged[1:] if m.laser_motion is None]
     assert len(no_laser) == 1 and no_laser[0].stamp == pytest.approx(0.7)
+
+
+def test_with_slow_encoders_a_merged_edge_ends_at_the_first_keyframe_after_a_sample():
+    """Encoder samples every 1.0 s (at 0.05, 1.05, 2.05, ...), keyframes every 0.1 s: once
+    the interval (0.5 s) has passed, an edge waits for the keyframe just after the next
+    sample, where its wheel angles are nearly exact, instead of ending between samples."""
+    rng = np.random.default_rng(2)
+    kfs = chain(41, rng)
+    for kf in kfs:
+        kf.since_sample = round(kf.stamp - 0.05, 9) % 1.0
+    merged = merge_keyframes(kfs, 0.5)
+    # Edges end 50 ms after the samples at 1.05, 2.05 and 3.05 s (and at the end of data).
+    assert [m.stamp for m in merged] == pytest.approx([0.0, 1.1, 2.1, 3.1, 4.0])
+    assert np.allclose(sum(m.dphi for m in merged[1:]), sum(k.dphi for k in kfs[1:]))
+
+
+def test_with_fast_encoders_edges_keep_the_interval():
+    rng = np.random.default_rng(3)
+    kfs = chain(21, rng)
+    for kf in kfs:
+        kf.since_sample = 0.004  # 50 Hz encoders: a sample between any two keyframes
+    assert [m.stamp for m in merge_keyframes(kfs, 0.5)] == pytest.approx([0.0, 0.5, 1.0, 1.5, 2.0])
+
+
+def test_with_slow_encoders_a_missing_scan_match_does_not_end_an_edge_between_samples():
+    """The match at 1.3 s is missing, between the samples at 1.05 and 2.05 s: the edge from
+    1.1 s goes on to the keyframe after the next sample without a laser part, instead of
+    ending at 1.2 s where the wheel angles are a straight line's guess."""
+    rng = np.random.default_rng(4)
+    kfs = chain(41, rng, broken={13})
+    for kf in kfs:
+        kf.since_sample = round(kf.stamp - 0.05, 9) % 1.0
+    merged = merge_keyframes(kfs, 0.5)
+    assert [m.stamp for m in merged] == pytest.approx([0.0, 1.1, 2.1, 3.1, 4.0])
+    assert [m.laser_motion is None for m in merged[1:]] == [False, True, False, False]
+    assert np.allclose(sum(m.dphi for m in merged[1:]), sum(k.dphi for k in kfs[1:]))

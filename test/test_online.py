@@ -15,7 +15,7 @@ from sclam_ros.sim import simulate
 from sclam_ros.io.recording import iter_keyframes
 from sclam_ros.core.marginal import NOT_RADII, RADII, Gaussian
 from sclam_ros.online.change import change_point, fade_radii
-from sclam_ros.online.window import POSE_WINDOW_DISTANCE, KeyframeMerger, OnlineCalibrator
+from sclam_ros.online.window import POSE_WINDOW_DISTANCE, OnlineCalibrator
 
 DURATION = 200.0
 CHANGE_AT = 100.0  # s after the start
@@ -85,25 +85,6 @@ def test_radius_change_detected_after_the_change_only(load_change):
             longest_before = max(longest_before, calibrator.window_length())
     assert len(detected) == 1 and CHANGE_AT < detected[0] < CHANGE_AT + 60, detected
     assert longest_before > 2 * POSE_WINDOW_DISTANCE  # the marginalised part counts
-
-
-def test_incremental_merge_equals_the_batch_merge(load_change):
-    bag, _, _ = load_change
-    params = SclamParams.from_yaml(bag / "params.yaml")
-    keyframes = read_recording(bag, params).keyframes[:400]
-    batch = merge_keyframes(keyframes, params.keyframe_interval)
-    merger = KeyframeMerger(params.keyframe_interval)
-    online = [m for kf in keyframes for m in merger.add(kf)]
-    # The batch merge closes its last partial chunk at the end of the run; online it waits.
-    assert len(batch) - 1 <= len(online) <= len(batch)
-    for a, b in zip(batch, online):
-        assert (a.index, a.stamp, a.laser_from) == (b.index, b.stamp, b.laser_from)
-        assert (a.dphi is None) == (b.dphi is None)
-        if a.dphi is not None:
-            np.testing.assert_allclose(a.dphi, b.dphi)
-        if a.laser_motion is not None:
-            np.testing.assert_allclose(a.laser_motion, b.laser_motion)
-            np.testing.assert_allclose(a.laser_information, b.laser_information)
 
 
 def test_wheel_base_not_moved_by_the_load_change(load_change):

@@ -265,10 +265,44 @@ def test_interpolation_variance_is_honest_on_a_simulated_drive_at_2_hz(tmp_path)
         ticks = params.ticks_per_revolution
         keyframes[rate] = {kf.stamp: kf for kf in read_recording(bag, params).keyframes}
     stamps = sorted(set(keyframes[2.0]) & set(keyframes[50.0]))
-    assert len(stamps) > 150
+    assert len(stamps) > 80  # (at 2 Hz the scans matched follow the encoder samples)
     error = np.array([keyframes[2.0][t].wheel_angles - keyframes[50.0][t].wheel_angles for t in stamps])
     variance = np.array([keyframes[2.0][t].angle_variance for t in stamps])
     quantisation = 2 * (2 * math.pi / ticks) ** 2 / 12  # each reading off by up to a tick
     assert np.sqrt(np.mean(error**2)) > 0.005  # rad: the effect is there to measure
     ratio = np.sqrt(np.mean(error**2, axis=0) / np.mean(variance + quantisation, axis=0))
     assert np.all((0.5 < ratio) & (ratio < 2.0)), ratio
+
+
+def test_odometry_edges_at_1_hz_end_where_the_wheel_angles_are_sampled(tmp_path):
+    """With odometry at 1 Hz and no wheel slip, the only error of an odometry edge's rotation
+    is the straight line between samples. Edges end just after samples (the decimator
+    matches the scan after each one, graph.merge_keyframes ends edges there), so it cancels:
+    against the simulator's ground truth the edges' rotations are within 0.3° RMS, while the
+    robot turns about 15° per edge (RMS) and a straight line across a 1 s turn errs by
+    degrees (1.7° RMS on this drive with edges ending between samples)."""
+    from sclam_ros.core import graph, kinematics, se2
+    from sclam_ros.core.params import SclamParams
+    from sclam_ros.io.recording import read_ground_truth, read_recording
+    from sclam_ros.sim import simulate
+
+    bag = tmp_path / "odometry_1_hz"
+    truth = simulate(bag, duration=60.0, seed=1, encoder_rate=1.0, slip_noise=0.0)
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    merged = graph.merge_keyframes(read_recording(bag, params).keyframes, params.keyframe_interval)
+    inputs = graph.GraphInputs.from_keyframes(merged)
+    k = [truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"]]
+    odometry = kinematics.forward_composed(inputs.odo_parts, k)[0]
+    stamps, poses = read_ground_truth(bag)
+    heading = np.unwrap(poses[:, 2])
+
+    def pose_at(t):
+        return np.column_stack([np.interp(t, stamps, poses[:, 0]), np.interp(t, stamps, poses[:, 1]),
+                                np.interp(t, stamps, heading)])
+
+    true_motion = se2.between(pose_at(inputs.stamps[inputs.odo_from + 1]),
+                              pose_at(inputs.stamps[inputs.odo_from]))
+    error = se2.between(odometry, true_motion)
+    assert len(error) > 40
+    assert np.degrees(np.sqrt(np.mean(true_motion[:, 2] ** 2))) > 8.0  # it does turn
+    assert np.degrees(np.sqrt(np.mean(error[:, 2] ** 2))) < 0.3

@@ -21,6 +21,9 @@ class Keyframe:
     # (2,) rad²: variance of wheel_angles from interpolating the encoders at the stamp
     # (frontend/sync.py; None: the angles were sampled there)
     angle_variance: Optional[np.ndarray] = None
+    # s from the last encoder sample at or before the stamp (0: sampled there; None: not
+    # known, taken as sampled): graph.merge_keyframes ends edges just after samples
+    since_sample: Optional[float] = None
     dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
     dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to

@@ -96,7 +96,7 @@ class Frontend:
         return self.decimator.skipped
 
     def add_scan(self, scan: Scan) -> list:
-        if not self.decimator.accept(scan.stamp):
+        if not self.decimator.accept(scan.stamp, self.stream.latest_stamp, self.stream.period):
             return []
         keyframes = [self._keyframe(s) for s in self.sync.add_scan(scan)]
         pending = self.sync.pending
@@ -134,7 +134,8 @@ class Frontend:
         index = self._count
         self._count += 1
         kf = Keyframe(index, synced.scan.stamp, np.array(synced.wheels.angles, float),
-                      angle_variance=np.array(synced.wheels.variance, float))
+                      angle_variance=np.array(synced.wheels.variance, float),
+                      since_sample=float(synced.wheels.since_sample))
         if self._previous is not None:
             increment, reason = increment_between(self._previous, synced, self.stream)
             if increment is not None:

@@ -83,6 +83,7 @@ class WheelAngles:
     segment: int
     # (2,) rad²: variance of `angles` from interpolating between samples (0 at a sample)
     variance: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    since_sample: float = 0.0  # s from the last sample at or before `stamp`
 
 
 class EncoderStream:
@@ -206,6 +207,11 @@ class EncoderStream:
     def latest_stamp(self) -> Optional[float]:
         return self._stamps[-1] if self._stamps else None
 
+    @property
+    def period(self) -> Optional[float]:
+        """The median step between recent samples (s), once MIN_PERIOD_SAMPLE are known."""
+        return float(np.median(self._periods)) if len(self._periods) >= MIN_PERIOD_SAMPLE else None
+
     def __len__(self) -> int:
         return len(self._stamps)
 
@@ -253,7 +259,7 @@ class EncoderStream:
         left = self._left[i] + w * (self._left[i + 1] - self._left[i])
         right = self._right[i] + w * (self._right[i + 1] - self._right[i])
         return WheelAngles(t, np.array([left, right]) * self._rad_per_unit, self._segments[i],
-                           self._interpolation_variance(i, t))
+                           self._interpolation_variance(i, t), t - stamps[i])
 
     def _interpolation_variance(self, i: int, t: float) -> np.ndarray:
         """(2,) rad²: variance of the angles interpolated at ``t`` between samples i and i + 1.

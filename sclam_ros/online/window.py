@@ -41,7 +41,7 @@ from typing import Optional
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod, kinematics, se2
-from sclam_ros.frontend.pipeline import Frontend, Keyframe
+from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.frontend.decimation import ONLINE_MATCH_PERIOD
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian, gaussian_of_prior
@@ -128,46 +128,6 @@ class CalibratorStatus:
     unconverged_in_a_row: int
 
 
-class KeyframeMerger:
-    """graph.merge_keyframes, one keyframe at a time, with running indices.
-
-    Feed per-scan keyframes in order; get back merged keyframes as each chunk of
-    `interval` seconds closes (or early, at a broken edge, so gaps stay gaps).
-    """
-
-    def __init__(self, interval: float):
-        self.interval = float(interval)
-        self.reset()
-
-    def reset(self):
-        self._last = None  # the last merged keyframe
-        self._segment = []
-        self._count = 0
-
-    def add(self, kf) -> list:
-        if self._last is None:
-            self._last = Keyframe(self._count, kf.stamp, kf.wheel_angles,
-                                  angle_variance=kf.angle_variance)
-            self._count += 1
-            return [self._last]
-        out = []
-        complete = (kf.dphi is not None and kf.laser_motion is not None
-                    and kf.laser_from == kf.index - 1)
-        if self._segment and not complete:
-            out.append(self._flush())
-        self._segment.append(kf)
-        if not complete or kf.stamp - self._last.stamp >= self.interval - 1e-9:
-            out.append(self._flush())
-        return out
-
-    def _flush(self):
-        kf = graph_mod.merged_keyframe(self._segment, self._count)
-        self._count += 1
-        self._last = kf
-        self._segment = []
-        return kf
-
-
 class OnlineCalibrator:
     """Feeds on encoder samples and scans in arrival order; keeps an up-to-date Estimate."""
 
@@ -180,7 +140,7 @@ class OnlineCalibrator:
         self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
         self.generation = 0  # counts window resets; solves and chunks from older ones are void
         self.frontend = Frontend(params, self.rejections, match_period=ONLINE_MATCH_PERIOD)
-        self.merger = KeyframeMerger(params.keyframe_interval)
+        self.merger = graph_mod.KeyframeMerger(params.keyframe_interval)
         self.reset_calibration()
 
     # --- user actions -------------------------------------------------------------------
