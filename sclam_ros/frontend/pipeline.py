@@ -1,8 +1,8 @@
 """From sensor samples to graph keyframes: the one data path for live topics and bags.
 
 Every scan that is matched (every n-th, about match_period apart: 0.3 s in batch, 0.1 s in
-the online calibrator; frontend/decimation.py) and that the encoders cover becomes a
-keyframe. Its edges to the previous keyframes:
+the online calibrator; with slower encoders also the scan just after each of their samples:
+frontend/decimation.py) and that the encoders cover becomes a keyframe. Its edges to the previous keyframes:
   - the wheel angle increments since the previous keyframe (odometry edge), unless the
     encoder stream broke in between (gap, clock jump), and
   - the laser's motion from the last scan the matcher accepted (laser edge), unless the

@@ -1,0 +1,140 @@
+"""Does the point-to-line refinement settle on the true motion? Its bias on scan pairs with known motion.
+
+A calibration's scale comes from the average of many scan matches, so a refinement whose
+fixed point sits 0.1 % long moves the wheel radii by 0.1 % although each match is within
+its σ. That is too small to see on one recording (bench/sensor_matrix.py needs tens of
+seeds to resolve it); here it is measured where nothing else can be blamed:
+
+  - pairs of laser poses in the simulator's office, the second `--step` m ahead of the
+    first along the laser's x axis (the robot's usual motion between matched scans) and
+    turned by a random few degrees; both scans ray cast, then `--draws` noise draws per pair;
+  - the refinement (point_to_line.refine_with_covariance) started at the true motion, with
+    the wall-line fit a recording would choose for that laser (its median range_noise over
+    30 noisy scans, as RefinedScanMatcher judges it);
+  - the error along the motion, as % of the step: the mean over pairs (± standard error
+    over pairs), and the 5–95 % range of the per-pair means (mm), which shows how much of
+    it depends on the walls in view.
+
+Rows: the low-cost laser of bench/sensor_matrix.py (2 cm + 1 % of range, 12 m, 720 beams;
+no dropouts or mixed pixels, which only thin the scans), its noise in one scan of the pair
+only, two of the refinement's constants changed, and constant-noise lasers.
+
+Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import table  # noqa: E402
+
+MOUNT = np.array([0.15, -0.03, np.deg2rad(4.0)])  # laser on base_link, as the simulator's default
+LOW_COST = dict(beams=720, range_noise=0.02, range_max=12.0, range_noise_per_m=0.01)
+# (label, LaserModel keywords, noise in (reference, new) scan, point_to_line constants)
+ROWS = [
+    ("low-cost: 2 cm + 1 % of range, 12 m, 720 b", LOW_COST, (1.0, 1.0), {}),
+    ("  noise in the new scan only", LOW_COST, (0.0, 1.0), {}),
+    ("  noise in the reference scan only", LOW_COST, (1.0, 0.0), {}),
+    ("  residuals from the points (no wall-line anchors)", LOW_COST, (1.0, 1.0),
+     {"ANCHOR_NEIGHBOURS": 10**9}),
+    ("  Huber scale 0.2 m (10×)", LOW_COST, (1.0, 1.0), {"HUBER": 0.2}),
+    ("constant 6 cm, 12 m, 720 b", dict(LOW_COST, range_noise=0.06, range_noise_per_m=0.0),
+     (1.0, 1.0), {}),
+    ("constant 2 cm, 12 m, 720 b", dict(LOW_COST, range_noise_per_m=0.0), (1.0, 1.0), {}),
+]
+
+
+def _scan(ranges, model):
+    from sclam_ros.core.inputs import Scan
+
+    return Scan(0.0, ranges, model.angle_min, model.angle_increment, model.range_min, model.range_max)
+
+
+def _measured(true, model, which, rng):
+    """The scans' ranges with the model's noise scaled by `which` (per scan), dropped
+    beyond range_max as a driver does."""
+    with np.errstate(invalid="ignore"):  # no return (inf) × a scan without noise (0)
+        sigma = model.range_noise + model.range_noise_per_m * true
+        ranges = true + np.asarray(which)[:, None] * sigma * rng.standard_normal(true.shape)
+        ranges[~np.isfinite(ranges) | (ranges > model.range_max) | (ranges < model.range_min)] = np.inf
+    return ranges
+
+
+def run_row(job):
+    """(label, mean % ± s.e. %, 5 % and 95 % of per-pair means in mm, matches used)."""
+    label, laser, which, constants, pairs, draws, step, seed = job
+    from sclam_ros.core import se2
+    from sclam_ros.frontend import point_to_line
+    from sclam_ros.frontend.scan_matching import scan_to_points
+    from sclam_ros.sim.motion import TrueKinematics
+    from sclam_ros.sim.sensors import LaserModel
+    from sclam_ros.sim.trajectory import simulate_trajectory
+    from sclam_ros.sim.world import office_world
+
+    for name, value in constants.items():  # this process runs this row only
+        setattr(point_to_line, name, value)
+    world = office_world()
+    route = simulate_trajectory(world, TrueKinematics(0.1, 0.1, 0.5), 200.0, seed, robot_radius=0.3)
+    rng = np.random.default_rng(seed)
+    model = LaserModel(**laser)
+    angles = model.angles()
+    laser_poses = se2.compose(route.pose_at(rng.uniform(0.0, route.duration - 1.0, pairs)), MOUNT)
+    # The wall-line fit the recording would choose: the laser's own noise, judged as
+    # RefinedScanMatcher does (median over 30 scans), whichever scan carries noise here.
+    judged = [point_to_line.range_noise(_scan(model.measure(world.raycast(p, angles, model.range_max)[None],
+                                                                    rng)[0], model))
+              for p in laser_poses[:30]]
+    noise = float(np.median([n for n in judged if n is not None]))
+    fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
+    per_pair, used = [], 0
+    for first in laser_poses:
+        second = se2.compose(first, np.array([step, 0.0, rng.normal(0.0, 0.05)]))
+        true = np.array([world.raycast(p, angles, model.range_max) for p in (first, second)])
+        z_true = se2.between(second, first)
+        along = z_true[:2] / np.hypot(*z_true[:2])
+        errors = []
+        for _ in range(draws):
+            ranges = _measured(true, model, which, rng)
+            reference = point_to_line.ReferenceScan.from_points(scan_to_points(_scan(ranges[0], model)),
+                                                                fit_noise)
+            points = scan_to_points(_scan(ranges[1], model))[:, :2]
+            z, pairs_used, _ = point_to_line.refine_with_covariance(reference, points, z_true)
+            if pairs_used:
+                errors.append(along @ (z[:2] - z_true[:2]))
+        if errors:
+            per_pair.append(np.mean(errors))
+            used += len(errors)
+    per_pair = np.array(per_pair)
+    mean = 100.0 * per_pair.mean() / step
+    error = 100.0 * per_pair.std(ddof=1) / np.sqrt(len(per_pair)) / step
+    low, high = 1e3 * np.percentile(per_pair, [5, 95])
+    return label, mean, error, low, high, used, noise
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--pairs", type=int, default=600)
+    ap.add_argument("--draws", type=int, default=20, help="noise draws per pair")
+    ap.add_argument("--step", type=float, default=0.15, help="m between the two laser poses")
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    jobs = [(label, laser, which, constants, args.pairs, args.draws, args.step, args.seed)
+            for label, laser, which, constants in ROWS]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(run_row, jobs))
+    print(f"{args.pairs} pose pairs × {args.draws} noise draws, {args.step:g} m apart, office; "
+          f"refinement started at the true motion")
+    print(table([[label, f"{mean:+.3f} ± {error:.3f}", f"{low:+.2f} … {high:+.2f}", used, f"{1e3 * noise:.0f}"]
+                 for label, mean, error, low, high, used, noise in results],
+                ["laser / variant", "error along the motion % (± s.e.)", "per pair 5–95 % (mm)",
+                 "matches", "judged noise mm"]))
+
+
+if __name__ == "__main__":
+    main()
