@@ -26,6 +26,7 @@ def test_matched_scans_are_about_the_match_period_apart(rate):
     assert np.allclose(spacing, expected * period, atol=1e-5)  # stamps near 1.7e9 s: ~0.2 µs steps
     assert spacing.min() >= min(0.5 * MATCH_PERIOD, period) - 1e-9
     assert decimator.skipped == len(stamps) - len(kept)
+    assert not decimator.follows_samples  # no encoder samples given
 
 
 def test_a_chunk_read_from_the_middle_matches_the_same_scans():
@@ -58,3 +59,4 @@ def test_slow_encoders_get_the_scan_after_each_sample_matched(encoder_rate):
         assert any(abs(k - (t + 0.013)) < 1e-6 for k in after), t
     assert np.diff(after).min() >= 0.5 * MATCH_PERIOD - 1e-6
     assert decimator.skipped == 600 - len(kept)
+    assert decimator.follows_samples  # `sclam calibrate` says so

@@ -207,9 +207,11 @@ def _warn_about_input(rejections, frontend) -> None:
     if expected:
         log.info("not used by design: %s", ", ".join(f"{r}: {n}" for r, n in sorted(expected.items())))
     if frontend is not None and frontend.skipped_scans:
-        log.info("%d scans not matched by design: 1 scan in %d is, about %g s apart "
+        log.info("%d scans not matched by design: 1 scan in %d is, about %g s apart%s "
                  "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
-                 frontend.decimator.every, frontend.decimator.match_period)
+                 frontend.decimator.every, frontend.decimator.match_period,
+                 ", and the scan after each encoder sample (the encoders are slower)"
+                 if frontend.decimator.follows_samples else "")
     if frontend is not None and frontend.matcher.odometry_guess_failures:
         log.warning("%d scan(s) could only be registered from the previous scan's motion: "
                     "from the wheel odometry's prediction (nominal calibration) the registration "

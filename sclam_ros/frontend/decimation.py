@@ -66,6 +66,7 @@ class ScanDecimator:
         self._bin_width = None
         self._last_bin = None
         self._last_accepted = None  # stamp of the last scan accepted
+        self.follows_samples = False  # the encoders were slower than the matching: see above
 
     def accept(self, stamp: float, last_sample: Optional[float] = None,
                sample_period: Optional[float] = None) -> bool:
@@ -90,6 +91,7 @@ class ScanDecimator:
         if self.every == 1:
             return True
         if last_sample is not None and sample_period is not None and sample_period > self._bin_width:
+            self.follows_samples = True
             accepted = self._on_sample_grid(stamp, last_sample, sample_period)
         else:
             current = math.floor(stamp / self._bin_width)
