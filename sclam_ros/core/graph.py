@@ -78,6 +78,9 @@ class GraphInputs:
     # (m_o, 2) rad²: variance of each increment from interpolating the encoders at its two
     # ends (Keyframe.angle_variance); None: the increments were sampled, not interpolated
     odo_variance: Optional[np.ndarray] = None
+    # (m_o,) rad⁴: each edge's sideways path variance between encoder samples
+    # (Keyframe.path_variance); None: none known
+    odo_path_variance: Optional[np.ndarray] = None
 
     @classmethod
     def from_keyframes(cls, keyframes, first_index=None):
@@ -98,6 +101,7 @@ class GraphInputs:
         return cls(
             odo_parts=parts,
             odo_variance=_increment_variance(keyframes, first),
+            odo_path_variance=_path_variance(keyframes, first),
             stamps=np.array([kf.stamp for kf in keyframes]),
             odo_from=np.array([o[0] for o in odo], int),
             odo_dphi=np.array([o[1] for o in odo], float).reshape(-1, 2),
@@ -130,13 +134,29 @@ def _increment_variance(keyframes, first):
     return np.array(rows, float).reshape(-1, 2)
 
 
+def _path_variance(keyframes, first):
+    """(m_o,) sideways path variance of each odometry edge (Keyframe.path_variance), in the
+    order of GraphInputs.odo_dphi; None when no keyframe has one."""
+    if all(getattr(kf, "path_variance", None) is None for kf in keyframes):
+        return None
+    return np.array([kf.path_variance or 0.0 for kf in keyframes
+                     if kf.dphi is not None and kf.index - first - 1 >= 0], float)
+
+
 def odometry_covariance(inputs: GraphInputs, params, k) -> np.ndarray:
     """(m_o, 3, 3) covariance of the odometry edges' motions K(u, k): the wheels' noise
     model (params.wheel_noise, lateral_noise, the encoder's quantisation) plus the
     interpolation variance of the increments (GraphInputs.odo_variance)."""
     return kinematics.motion_covariance(inputs.odo_dphi, k, params.wheel_noise,
                                         encoder_variance_floor(params), params.lateral_noise,
-                                        inputs.odo_variance)
+                                        inputs.odo_variance, inputs.odo_path_variance)
+
+
+def _node(kf, index):
+    """A keyframe at kf's stamp and wheel angles (with what is known of them), numbered
+    `index`, without edges."""
+    return Keyframe(index, kf.stamp, kf.wheel_angles, angle_variance=kf.angle_variance,
+                    since_sample=kf.since_sample)
 
 
 def merged_keyframe(segment, index):
@@ -144,11 +164,12 @@ def merged_keyframe(segment, index):
     increments kept per part (the odometry factor composes their arcs) and summed, chained
     scan matches composed with their covariances added. The edge starts at keyframe
     ``index − 1``."""
-    kf = Keyframe(index, segment[-1].stamp, segment[-1].wheel_angles,
-                  angle_variance=segment[-1].angle_variance, since_sample=segment[-1].since_sample)
+    kf = _node(segment[-1], index)
     if all(s.dphi is not None for s in segment):
         kf.dphi_parts = np.array([s.dphi for s in segment])
         kf.dphi = kf.dphi_parts.sum(axis=0)
+        if any(s.path_variance is not None for s in segment):
+            kf.path_variance = float(sum(s.path_variance or 0.0 for s in segment))
     if all(_chained(s) for s in segment):
         z = np.zeros(3)
         for s in segment:
@@ -236,8 +257,7 @@ class KeyframeMerger:
         previous = self._previous_stamp
         self._previous_stamp = kf.stamp
         if self._last is None:
-            self._last = Keyframe(self._count, kf.stamp, kf.wheel_angles,
-                                  angle_variance=kf.angle_variance, since_sample=kf.since_sample)
+            self._last = _node(kf, self._count)
             self._count += 1
             return [self._last]
         out = []

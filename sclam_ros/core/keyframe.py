@@ -24,6 +24,9 @@ class Keyframe:
     # s from the last encoder sample at or before the stamp (0: sampled there; None: not
     # known, taken as sampled): graph.merge_keyframes ends edges just after samples
     since_sample: Optional[float] = None
+    # rad⁴: sideways path variance of the odometry edge since keyframe index − 1, between
+    # encoder samples (frontend/sync.py EncoderStream._path_variance; None: none known)
+    path_variance: Optional[float] = None
     dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
     dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to

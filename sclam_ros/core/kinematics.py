@@ -123,7 +123,7 @@ def forward_composed(parts, k):
 
 
 def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
-                      increment_variance=None):
+                      increment_variance=None, path_variance=None):
     """Covariance (..., 3, 3) of K(u, k): wheel-angle noise plus sideways slip.
 
     Each wheel's increment has variance wheel_noise² · |dφ| + floor (slip and backlash
@@ -132,7 +132,8 @@ def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
     uncertain (interpolated between slow encoder samples). Wheel noise alone is rank 2: the model cannot move sideways. Real
     tyres do slip sideways a little, so a lateral variance lateral_noise² · |s| (m² per m
     travelled) makes the edge full rank, and keeps a robot standing still positive
-    definite.
+    definite. `path_variance` (...,) rad⁴ is where the path between slow encoder samples
+    may run beside the constant-speed arcs (frontend/sync.py): times (r²/b)², sideways.
     """
     dphi = np.asarray(dphi, float)
     var = wheel_noise**2 * np.abs(dphi) + floor
@@ -142,6 +143,10 @@ def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
     cov = np.einsum("...ij,...j,...kj->...ik", ju, var, ju)
     s, _ = arc_length_and_rotation(dphi, k)
     lateral = lateral_noise**2 * np.abs(s) + floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    if path_variance is not None:
+        k_arr = np.asarray(k)
+        lateral = lateral + np.asarray(path_variance, float) * (
+            np.mean(k_arr[..., :2], axis=-1) ** 2 / k_arr[..., 2]) ** 2
     cov[..., 1, 1] += lateral
     cov[..., 0, 0] += floor * np.mean(np.asarray(k)[..., :2]) ** 2
     cov[..., 2, 2] += floor * (np.mean(np.asarray(k)[..., :2]) / np.asarray(k)[..., 2]) ** 2

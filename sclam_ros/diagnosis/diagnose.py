@@ -121,7 +121,9 @@ def _subset(inputs, keep_pose_edges):
                                  inputs.laser_info[la],
                                  odo_parts=None if inputs.odo_parts is None else inputs.odo_parts[o],
                                  odo_variance=(None if inputs.odo_variance is None
-                                               else inputs.odo_variance[o]))
+                                               else inputs.odo_variance[o]),
+                                 odo_path_variance=(None if inputs.odo_path_variance is None
+                                                    else inputs.odo_path_variance[o]))
 
 
 def _fit_base(inputs, params, nominal, observability, poses=None) -> Fit:

@@ -140,6 +140,10 @@ class Frontend:
             increment, reason = increment_between(self._previous, synced, self.stream)
             if increment is not None:
                 kf.dphi = np.asarray(increment.dphi, float)
+                # Both ends in one encoder segment: their cumulative path variances differ
+                # by the intervals completed in between.
+                kf.path_variance = max(
+                    float(synced.wheels.path_variance - self._previous.wheels.path_variance), 0.0)
             else:
                 self.rejections.add(reason)
         early, self._early = self._early, None
