@@ -62,6 +62,10 @@ def format_summary(report) -> str:
                      f"{e['value']:.4g}{sigma} {e['evidence']['units']}  "
                      f"(held-out gain {e['evidence']['heldout_gain_per_edge']:+.4f}/edge, "
                      f"{_likelihood_ratio(e['evidence'])})")
+        alternatives = e["evidence"].get("alternatives")
+        if alternatives and e["selected"]:
+            lines.append(f"    {', '.join(alternatives)} fit the data about as well (within one "
+                         f"standard error of held-out error); {e['name']} is the simplest of them")
         stand_in = e["evidence"].get("stand_in_for")
         if stand_in and not e["selected"]:
             lines.append(f"    {stand_in['regressor']} explains more of what it would fit "

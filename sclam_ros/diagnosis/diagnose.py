@@ -433,7 +433,10 @@ def _stepwise_selection(models: _Models, names, n_edges, say):
                   for n in remaining for other in _entangled(round_[n])]
         passing = [n for n in remaining if round_[n]["passes"]]
         if passing:
-            chosen = _simplest_near_best(models, selected, passing, round_)
+            chosen, near = _simplest_near_best(models, selected, passing, round_)
+            # What else the data fit about as well: the choice among them is the simplest,
+            # not what the recording showed, and the report says so.
+            evidence[chosen] = {**round_[chosen], "alternatives": [n for n in near if n != chosen]}
             selected.append(chosen)
             remaining.remove(chosen)
         else:
@@ -489,10 +492,11 @@ def _unique_pairs(pairs, selected) -> list:
     return list(out.values())
 
 
-def _simplest_near_best(models: _Models, selected, passing, round_) -> str:
-    """Mean effects before noise effects (a variance model over a mean misfit takes the
-    misfit for noise, and the two kinds are judged on different folds), then the
-    simplest within one standard error of the best."""
+def _simplest_near_best(models: _Models, selected, passing, round_):
+    """(chosen, the candidates within one standard error of the best): mean effects before
+    noise effects (a variance model over a mean misfit takes the misfit for noise, and the
+    two kinds are judged on different folds), then the simplest within one standard error
+    of the best."""
     passing = [n for n in passing if LIBRARY[n].kind != "noise"] or passing
     spread = LIBRARY[passing[0]].kind == "noise"
     best = max(passing, key=lambda n: round_[n]["gain"].mean())
@@ -502,8 +506,8 @@ def _simplest_near_best(models: _Models, selected, passing, round_) -> str:
         worse = models.heldout_nll(selected + [name], spread) - best_nll
         return worse.mean() <= worse.std(ddof=1) / np.sqrt(len(worse))
 
-    return min((n for n in passing if near(n)),
-               key=lambda n: (models.effects([n])[0].dim, -round_[n]["gain"].mean()))
+    close = [n for n in passing if near(n)]
+    return min(close, key=lambda n: (models.effects([n])[0].dim, -round_[n]["gain"].mean())), close
 
 
 # --- the diagnosis ---------------------------------------------------------------------------
@@ -539,6 +543,7 @@ def _effect_json(ev: dict, selected: bool) -> dict:
             **({"blocked_by_mean_structure": ev["blocked_by_mean_structure"]}
                if ev["blocked_by_mean_structure"] else {}),
             **({"stand_in_for": ev["stand_in_for"]} if ev["stand_in_for"] else {}),
+            **({"alternatives": ev["alternatives"]} if ev.get("alternatives") else {}),
             **({"params": ev["params"]} if ev["params"] is not None else {}),
         },
         **ev["describe"],
@@ -591,6 +596,11 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
     effects_json = []
     for name in names:
         e = _effect_json(evidence[name], name in selected)
+        if "alternatives" in e["evidence"]:  # those selected as well are no alternative
+            e["evidence"]["alternatives"] = [a for a in e["evidence"]["alternatives"]
+                                             if a not in selected]
+            if not e["evidence"]["alternatives"] or name not in selected:
+                del e["evidence"]["alternatives"]
         if name in final:
             e["value"], e["sigma"] = final[name][:2]
         effects_json.append(e)
