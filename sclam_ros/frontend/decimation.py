@@ -25,9 +25,10 @@ half of it before the next sample: graph.merge_keyframes ends the odometry edges
 scans after samples, where the wheel angles are nearly exact, so the straight line between
 samples (wrong wherever the robot turned in part of an encoder interval) cancels inside
 each edge. With `python bench/sensor_matrix.py --seeds 20 --rows 6 7`, edges ending after
-samples against edges ending on the 0.3 s grid: odometry at 1 Hz, wheel base mean error
-−0.09 / −0.34 % (RMS 0.23 / 0.59 %), radii +0.06 +0.02 / +0.11 +0.07 %; at 2 Hz, wheel
-base −0.04 / −0.17 %, radii +0.02 +0.00 / +0.08 +0.05 %.
+samples (with their sideways path variance, sync.py) against edges ending on the 0.3 s
+grid: odometry at 1 Hz, wheel base mean error −0.08 / −0.34 % (RMS 0.22 / 0.59 %), radii
++0.07 +0.03 / +0.11 +0.07 %; at 2 Hz, wheel base −0.04 / −0.17 %, radii +0.02 +0.00 /
++0.08 +0.05 %.
 
 The rule depends on the stamps only, not on where reading started: n = MATCH_PERIOD / the
 median period of the first scans, rounded (halves up), and a scan is matched when it is the
