@@ -129,11 +129,12 @@ def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
     Each wheel's increment has variance wheel_noise² · |dφ| + floor (slip and backlash
     accumulate with the angle turned, a random walk; the floor is the encoder's
     quantisation), plus `increment_variance` (..., 2) where the increments themselves are
-    uncertain (interpolated between slow encoder samples). Wheel noise alone is rank 2: the model cannot move sideways. Real
-    tyres do slip sideways a little, so a lateral variance lateral_noise² · |s| (m² per m
-    travelled) makes the edge full rank, and keeps a robot standing still positive
-    definite. `path_variance` (...,) rad⁴ is where the path between slow encoder samples
-    may run beside the constant-speed arcs (frontend/sync.py): times (r²/b)², sideways.
+    uncertain (interpolated between slow encoder samples). Wheel noise alone is rank 2:
+    the model cannot move sideways. Real tyres do slip sideways a little, so a lateral
+    variance lateral_noise² · |s| (m² per m travelled) makes the edge full rank, and keeps
+    a robot standing still positive definite. `path_variance` (...,) rad⁴ is where the
+    path between slow encoder samples may run beside the constant-speed arcs
+    (frontend/sync.py): times (r²/b)², sideways.
     """
     dphi = np.asarray(dphi, float)
     var = wheel_noise**2 * np.abs(dphi) + floor

@@ -524,8 +524,11 @@ class Diagnosis:
     tests_after: list = field(repr=False, default=None)
 
 
-def _effect_json(ev: dict, selected: bool) -> dict:
+def _effect_json(ev: dict, selected_names) -> dict:
     gain = ev["gain"]
+    selected = ev["name"] in selected_names
+    # What fit about as well as a selected effect, and was not selected itself.
+    alternatives = [a for a in ev.get("alternatives", []) if a not in selected_names] if selected else []
     return {
         "name": ev["name"], "selected": selected, "value": ev["value"], "sigma": ev["sigma"],
         "evidence": {
@@ -543,7 +546,7 @@ def _effect_json(ev: dict, selected: bool) -> dict:
             **({"blocked_by_mean_structure": ev["blocked_by_mean_structure"]}
                if ev["blocked_by_mean_structure"] else {}),
             **({"stand_in_for": ev["stand_in_for"]} if ev["stand_in_for"] else {}),
-            **({"alternatives": ev["alternatives"]} if ev.get("alternatives") else {}),
+            **({"alternatives": alternatives} if alternatives else {}),
             **({"params": ev["params"]} if ev["params"] is not None else {}),
         },
         **ev["describe"],
@@ -595,12 +598,7 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS, progre
     ext, final = _extended_fit(models, selected)
     effects_json = []
     for name in names:
-        e = _effect_json(evidence[name], name in selected)
-        if "alternatives" in e["evidence"]:  # those selected as well are no alternative
-            e["evidence"]["alternatives"] = [a for a in e["evidence"]["alternatives"]
-                                             if a not in selected]
-            if not e["evidence"]["alternatives"] or name not in selected:
-                del e["evidence"]["alternatives"]
+        e = _effect_json(evidence[name], selected)
         if name in final:
             e["value"], e["sigma"] = final[name][:2]
         effects_json.append(e)
