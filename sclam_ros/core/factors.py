@@ -51,6 +51,9 @@ class Factor:
     # Whether variance component estimation may rescale this factor's noise: true for
     # measurements, false for priors (their σ is a statement, not a measurement).
     measurement = True
+    # Whether consecutive edges (one ending at the pose the next starts from) share a
+    # measurement, so that their errors correlate (solver.chain_correlated_covariance).
+    chained_errors = False
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -121,6 +124,8 @@ class LaserFactor(Factor):
     """e_ij = ((x_j ⊕ l) ⊖ (x_i ⊕ l)) ⊖ z_ij: the laser's own motion against scan matching."""
 
     name = "laser"
+    # Consecutive matches share a scan: its registration error enters both.
+    chained_errors = True
 
     def __init__(self, pose_i, pose_j, z, information):
         self.pose_i = np.asarray(pose_i, int)

@@ -526,6 +526,73 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
     return result, dict(problem.scales)
 
 
+def _influence(problem: Problem, values: Values, blocks, lu=None):
+    """The linear system at `values`, H⁻¹ E (the named blocks' columns of H⁻¹, size × p)
+    and J H⁻¹ E (rows × p): how each whitened residual row moves those variables."""
+    system = problem.linear_system(values)
+    if lu is None:
+        hessian, _ = _normal_equations(system)
+        lu = LinearSolver(hessian, problem.banded_size)
+    cols = np.concatenate([problem.layout.columns(name) for name in blocks])
+    unit = np.zeros((problem.layout.size, len(cols)))
+    unit[cols, np.arange(len(cols))] = 1.0
+    solved = lu.solve(unit)
+    return system, solved[cols], system.jacobian @ solved
+
+
+def chained_edges(factor):
+    """Index pairs (t, u) of a factor's edges where edge u starts at the pose edge t ends at."""
+    start = {int(i): n for n, i in enumerate(factor.pose_i)}
+    t = np.array([n for n, j in enumerate(factor.pose_j) if int(j) in start], int)
+    u = np.array([start[int(factor.pose_j[n])] for n in t], int)
+    return t, u
+
+
+def lag1_correlation(whitened, t, u) -> np.ndarray:
+    """Pooled lag-1 correlation per component of whitened residuals (m, d) over pairs (t, u)."""
+    if len(t) == 0:
+        return np.zeros(whitened.shape[1])
+    cross = np.mean(whitened[t] * whitened[u], axis=0)
+    return cross / np.maximum(np.mean(whitened**2, axis=0), 1e-300)
+
+
+def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=None):
+    """H⁻¹ (Jᵀ C J) H⁻¹ of the named blocks, with C the errors' covariance when consecutive
+    edges of a factor with `chained_errors` are correlated; and those correlations.
+
+    H⁻¹ assumes every edge independent. Consecutive scan matches share a scan, whose own
+    registration error enters them with opposite signs, so their errors correlate
+    negatively and cancel where a parameter averages over many edges (the laser pose):
+    H⁻¹ overstates its σ (RMS err/σ 0.4-0.7 over 20 seeds on most simulated lasers). In
+    whitened units C has the identity on its diagonal and diag(ρ) between chained edges,
+    ρ per component pooled over the recording from the residuals, one number each, so it
+    is not noisy as the sandwich's per-edge products are. The residuals' correlation
+    understates the errors' (the poses absorb part of each): measured against the
+    simulator's truth −0.13 to −0.33 against −0.34 to −0.36 on the default laser, −0.04 to
+    −0.20 against −0.10 to −0.25 on the noisy ones, so the correction errs toward H⁻¹.
+    Only cancellation is taken from it (ρ clipped to [−0.5, 0]: −0.5 is a scan's error
+    alone, and C stays positive semidefinite); a positive correlation is the sandwich's to
+    report.
+    """
+    system, cov, influence = _influence(problem, values, blocks, lu)
+    correlations = {}
+    factor_rows = iter(system.row_ranges)
+    for factor in problem.factors:
+        if len(factor) == 0:
+            continue
+        name, start, stop = next(factor_rows)
+        if not getattr(factor, "chained_errors", False):
+            continue
+        d = factor.edge_dim
+        t, u = chained_edges(factor)
+        rho = np.clip(lag1_correlation(system.residual[start:stop].reshape(-1, d), t, u), -0.5, 0.0)
+        correlations[name] = rho
+        rows = influence[start:stop].reshape(-1, d, influence.shape[1])
+        cross = np.einsum("tip,i,tiq->pq", rows[t], rho, rows[u])
+        cov = cov + cross + cross.T
+    return 0.5 * (cov + cov.T), correlations
+
+
 def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1, lu=None):
     """Heteroscedasticity- and autocorrelation-consistent covariance of the named blocks.
 
@@ -541,22 +608,16 @@ def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1,
     the variance that cancels. The truncated estimate need not be positive semidefinite:
     negative eigenvalues are clipped to zero.
     """
-    system = problem.linear_system(values)
-    if lu is None:
-        hessian, _ = _normal_equations(system)
-        lu = LinearSolver(hessian, problem.banded_size)
-    cols = np.concatenate([problem.layout.columns(name) for name in blocks])
-    unit = np.zeros((problem.layout.size, len(cols)))
-    unit[cols, np.arange(len(cols))] = 1.0
-    influence = system.jacobian @ lu.solve(unit)  # rows × p: J H⁻¹ E
+    system, _, influence = _influence(problem, values, blocks, lu)
+    cols = influence.shape[1]
     # Scores of all measurement edges that end at the same pose are one time step's
     # contribution: the odometry and the laser edge of an interval are fitted to the same
     # pose difference, so their residuals are correlated and must be summed, not counted
     # as independent.
     n_time = max((int(f.pose_j.max()) + 1 for f in problem.factors
                   if f.measurement and len(f) and hasattr(f, "pose_j")), default=0)
-    per_time = np.zeros((n_time, len(cols)))
-    meat = np.zeros((len(cols), len(cols)))
+    per_time = np.zeros((n_time, cols))
+    meat = np.zeros((cols, cols))
     factor_rows = iter(system.row_ranges)
     for factor in problem.factors:
         if len(factor) == 0:
@@ -565,7 +626,7 @@ def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1,
         if not factor.measurement:
             continue
         d = factor.edge_dim
-        scores = (influence[start:stop] * system.residual[start:stop, None]).reshape(-1, d, len(cols)).sum(1)
+        scores = (influence[start:stop] * system.residual[start:stop, None]).reshape(-1, d, cols).sum(1)
         if hasattr(factor, "pose_j"):
             np.add.at(per_time, factor.pose_j, scores)
         else:  # no time order known: independent edges
