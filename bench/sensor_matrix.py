@@ -13,6 +13,8 @@ simulated with --seeds seeds (PowerBot, --duration s, the default drive) and cal
   - scale of the scan matches: Σ z·z_true / Σ |z_true|² over every laser edge of the graph
     (translation), z_true from the simulator's ground truth and the true mount: 1.0000 when
     matched displacements are neither short nor long (± its standard error over seeds);
+    and their turn, Σ z_true × z / Σ |z_true|² in degrees (0 when matched translations
+    point where the true ones do; a turn shows up as a laser yaw error);
   - calibration cost per second of recording (reading, matching, solving; one process per
     core, --jobs processes at once).
 
@@ -79,9 +81,12 @@ FACTOR_ROWS = {
 RADII_AND_BASE = ("wheel_radius_left", "wheel_radius_right", "wheel_base")
 
 
-def match_scale(bag, truth, keyframes) -> float:
-    """Σ z·z_true / Σ |z_true|² (translation) over every scan match (before keyframes are
-    merged: each match between the two scans' own stamps)."""
+def match_bias(bag, truth, keyframes) -> tuple:
+    """Scale Σ z·z_true / Σ |z_true|² and turn Σ z_true × z / Σ |z_true|² (rad, positive:
+    matched translations turned counter-clockwise from the true ones) over every scan match
+    (before keyframes are merged: each match between the two scans' own stamps). A turn of
+    the matched translations is an error of the laser yaw, which the calibration takes from
+    the direction the laser moves in when the robot drives straight."""
     from sclam_ros.core import se2
     from sclam_ros.io.recording import read_ground_truth
 
@@ -99,7 +104,10 @@ def match_scale(bag, truth, keyframes) -> float:
     b = laser_pose(np.array([kf.stamp for kf in matched]))
     z_true = se2.between(b, a)
     z = np.array([kf.laser_motion for kf in matched])
-    return float((z[:, :2] * z_true[:, :2]).sum() / (z_true[:, :2] ** 2).sum())
+    norm = (z_true[:, :2] ** 2).sum()
+    scale = (z[:, :2] * z_true[:, :2]).sum() / norm
+    turn = (z_true[:, 0] * z[:, 1] - z_true[:, 1] * z[:, 0]).sum() / norm
+    return float(scale), float(turn)
 
 
 def run_one(job):
@@ -123,8 +131,9 @@ def run_one(job):
         return dict(name=name, seed=seed, failed=str(exc).splitlines()[0])
     cost = (time.perf_counter() - start) / duration
     error = {k: result.estimate[k] - truth[k] for k in CALIBRATION_KEYS}
+    scale, turn = match_bias(bag, truth, recording.keyframes)
     return dict(
-        name=name, seed=seed, failed=None, cost=cost, scale=match_scale(bag, truth, recording.keyframes),
+        name=name, seed=seed, failed=None, cost=cost, scale=scale, turn=turn,
         error=error, z={k: error[k] / result.sigma[k] for k in CALIBRATION_KEYS},
         relative={k: 100.0 * error[k] / truth[k] for k in RADII_AND_BASE},
         observable=all(result.observable.values()),
@@ -137,13 +146,14 @@ def row_cells(name, results):
     ok = [r for r in results if not r["failed"]]
     failed = len(results) - len(ok)
     if not ok:
-        return [name, f"0/{len(results)}"] + ["-"] * 6
+        return [name, f"0/{len(results)}"] + ["-"] * 9
     rel = np.array([[r["relative"][k] for k in RADII_AND_BASE] for r in ok])
     laser = np.array([[1e3 * r["error"]["laser_x"], 1e3 * r["error"]["laser_y"],
                        math.degrees(r["error"]["laser_yaw"])] for r in ok])
     z = np.array([[r["z"][k] for k in CALIBRATION_KEYS] for r in ok])
     rms_z = np.sqrt(np.mean(z ** 2, axis=0))
     scales = np.array([r["scale"] for r in ok])
+    turns = np.degrees([r["turn"] for r in ok])
     return [
         name, f"{len(ok)}/{len(results)}",
         " ".join(f"{m:+.3f}" for m in rel.mean(0)),
@@ -154,6 +164,7 @@ def row_cells(name, results):
         + f" / {np.sqrt(np.mean(laser[:, 2] ** 2)):.3f}",
         " ".join(f"{v:.2f}" for v in rms_z),
         f"{scales.mean():.4f} ± {_standard_error(scales[:, None])[0]:.4f}",
+        f"{turns.mean():+.3f} ± {_standard_error(turns[:, None])[0]:.3f}",
         f"{1e3 * np.median([r['cost'] for r in ok]):.0f}",
     ]
 
@@ -200,7 +211,7 @@ def main():
                 ["laser / scene", "calibrated", "mean error r_l r_r b %", "its standard error %",
                  "RMS error r_l r_r b %", "mean laser error x y mm / yaw °",
                  "RMS laser x y mm / yaw °", "RMS err/σ r_l r_r b x y yaw", "match scale",
-                 "ms per s recorded"]))
+                 "match turn °", "ms per s recorded"]))
 
 
 if __name__ == "__main__":
