@@ -12,10 +12,11 @@ seeds to resolve it); here it is measured where nothing else can be blamed:
     the wall-line fit a recording would choose for that laser (its median range_noise over
     30 noisy scans, as RefinedScanMatcher judges it);
   - the error along the motion, as % of the step: the mean over pairs (± standard error
-    over pairs); the mean weighted by each match's information along the motion from the
-    refinement's own covariance, as the graph weighs the matches (± standard error by
-    resampling the pairs); and the 5–95 % range of the per-pair means (mm), which shows how
-    much of it depends on the walls in view.
+    over pairs); the mean weighted by each match's information along the motion as the
+    graph weighs the matches, from the scan-match noise model's covariance plus the
+    refinement's own (scan_matching.NoiseModel, point_to_line.refine_with_covariance)
+    (± standard error by resampling the pairs); and the 5–95 % range of the per-pair means
+    (mm), which shows how much of it depends on the walls in view.
 
 Rows: the low-cost laser of bench/sensor_matrix.py (2 cm + 1 % of range, 12 m, 720 beams;
 no dropouts or mixed pixels, which only thin the scans), its noise in one scan of the pair
@@ -100,7 +101,7 @@ def _measure_row(job):
     label, laser, which, options, pairs, draws, step, seed = job
     from sclam_ros.core import se2
     from sclam_ros.frontend import point_to_line
-    from sclam_ros.frontend.scan_matching import scan_to_points
+    from sclam_ros.frontend.scan_matching import NoiseModel, scan_to_points
     from sclam_ros.sim.motion import TrueKinematics
     from sclam_ros.sim.sensors import LaserModel
     from sclam_ros.sim.trajectory import simulate_trajectory
@@ -139,7 +140,9 @@ def _measure_row(job):
                 reference, points, z_true * [start_scale, start_scale, 1.0])
             if pairs_used:
                 errors.append(along @ (z[:2] - z_true[:2]))
-                weights.append(1.0 / max(along @ covariance[:2, :2] @ along, 1e-12))
+                # The graph's covariance of the match: the noise model's plus the refinement's.
+                graph_covariance = np.diag(NoiseModel().sigmas(z) ** 2) + covariance
+                weights.append(1.0 / (along @ graph_covariance[:2, :2] @ along))
         if errors:
             per_pair.append((np.mean(errors), np.sum(np.multiply(weights, errors)), np.sum(weights)))
             used += len(errors)
@@ -148,9 +151,9 @@ def _measure_row(job):
     mean = 100.0 * means.mean() / step
     error = 100.0 * means.std(ddof=1) / np.sqrt(len(means)) / step
     low, high = 1e3 * np.percentile(means, [5, 95])
-    # As the graph weighs them: by the refinement's own information along the motion (a
-    # match in a corridor whose ends are out of range counts little); its standard error
-    # by resampling the pairs.
+    # As the graph weighs them: by their information along the motion (a match in a
+    # corridor whose ends are out of range counts little); its standard error by
+    # resampling the pairs.
     weighted = 100.0 * per_pair[:, 1].sum() / per_pair[:, 2].sum() / step
     resampled = rng.integers(0, len(per_pair), (200, len(per_pair)))
     spread = 100.0 * np.std(per_pair[resampled, 1].sum(1) / per_pair[resampled, 2].sum(1)) / step
