@@ -44,11 +44,18 @@ from sclam_ros.core.inputs import Rejections, Scan
 # --- scan → points -----------------------------------------------------------------------
 
 
+def range_limit(scan: Scan, max_range: float = np.inf) -> float:
+    """The farthest return used: the scan's range_max (if it states one) or ours."""
+    if np.isfinite(scan.range_max) and scan.range_max > 0:
+        return min(float(scan.range_max), max_range)
+    return max_range
+
+
 def valid_beams(scan: Scan, min_range: float = 0.0, max_range: float = np.inf) -> np.ndarray:
     """Mask of the beams that are returns: finite, > 0, within the scan's and our limits."""
     r = np.asarray(scan.ranges, float)
     lo = max(float(scan.range_min), min_range, 0.0)
-    hi = min(float(scan.range_max), max_range) if np.isfinite(scan.range_max) and scan.range_max > 0 else max_range
+    hi = range_limit(scan, max_range)
     with np.errstate(invalid="ignore"):
         # NaN compares False everywhere, so it drops out with the comparisons; r > 0 drops the
         # "0 = no return" convention even when range_min is 0.
