@@ -10,7 +10,8 @@ seeds to resolve it); here it is measured where nothing else can be blamed:
     turned by a random few degrees; both scans ray cast, then `--draws` noise draws per pair;
   - the refinement (point_to_line.refine_with_covariance) started at the true motion, with
     the wall-line fit a recording would choose for that laser (its median range_noise over
-    30 noisy scans, as RefinedScanMatcher judges it);
+    30 noisy scans, as RefinedScanMatcher judges it) and the lines near the range limit
+    left out as it does (point_to_line.CLEAR_OF_LIMIT);
   - the error along the motion, as % of the step: the mean over pairs (± standard error
     over pairs); the mean weighted by each match's information along the motion as the
     graph weighs the matches, from the scan-match noise model's covariance plus the
@@ -122,6 +123,9 @@ def _measure_row(job):
               for p in laser_poses[:30]]
     noise = float(np.median([n for n in judged if n is not None]))
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
+    # Lines near the range limit are left out as RefinedScanMatcher does (CLEAR_OF_LIMIT).
+    usable_range = model.range_max - (point_to_line.CLEAR_OF_LIMIT * noise
+                                      if noise <= point_to_line.NOT_A_NOISE else 0.0)
     per_pair, used = [], 0
     for first in laser_poses:
         second = se2.compose(first, np.array([step, 0.0, rng.normal(0.0, 0.05)]))
@@ -134,7 +138,7 @@ def _measure_row(job):
             if clear_of_limit:
                 ranges[ranges > model.range_max - clear_of_limit * noise] = np.inf
             reference = point_to_line.ReferenceScan.from_points(scan_to_points(_scan(ranges[0], model)),
-                                                                fit_noise)
+                                                                fit_noise, usable_range)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])
