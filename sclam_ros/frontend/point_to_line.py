@@ -88,22 +88,20 @@ MAX_CORRECTION_ANGLE = 0.02  # rad
 # A driver reports nothing where the measured range exceeds the laser's range_max, so of a
 # wall near the limit only the returns whose noise brought them nearer are kept: its points
 # sit nearer than the wall, by more the closer the wall is to the limit. A laser with a
-# narrow field of view sees mostly walls ahead, which the earlier (reference) scan sees
-# farther than the later one: the reference's wall is too near and the motion toward it
-# comes out short. Measured on the straight-driving scan pairs of six URG-04LX-like
-# recordings (3 cm, 5.6 m, 240°), the refinement started at the true motion, the same noise
-# draws with and without the cut: the cut shortens the motion by 0.17 ± 0.02 %, all of it
-# through the reference scan (cut in the new scan alone: 0.01 %), and leaving out the
-# reference's returns whose true range is within 4σ of the limit removes it. The true range
-# is unknown, and leaving out returns by their measured range is the same cut again (at
-# 3σ or 8σ inside the limit: 0.26 / 0.24 % short). What is left out instead is a pair whose
-# reference wall line (its anchor, an average over the neighbourhood where the wall is
-# dense enough, else the point) lies within CLEAR_OF_LIMIT times the laser's range noise of
-# the limit, from either scan: that recovers 0.04 ± 0.01 % of the 0.17 (in the calibrations,
-# bench/sensor_matrix.py --seeds 20 --rows 2: radii −0.10 / −0.14 → −0.08 / −0.11 %, base
-# −0.04 → −0.01 %, match scale 0.9986 → 0.9995). Wider margins (3σ + 0.25 m, + 0.5 m) and
-# testing the new point's own range, or its beam's range to the reference line, did no
-# better.
+# narrow field of view sees mostly walls ahead, which the earlier (reference) scan of a pair
+# sees farther than the later one: the reference's wall is too near and the motion toward
+# it comes out short. `python bench/range_limit_bias.py` (URG-04LX-like straight-driving
+# pairs, the same noise draws in every variant): leaving out the reference's returns whose
+# true range is within 4σ of the limit lengthens the matches by 0.14 ± 0.02 %. The true
+# range is unknown, and leaving out returns by their measured range is the same cut again
+# (bench/refinement_bias.py: −0.24 % with those within 3σ of the limit left out, against
+# −0.14 %). What is left out instead is a pair whose reference wall line (its anchor, an
+# average over the neighbourhood where the wall is dense enough, else the point) lies
+# within CLEAR_OF_LIMIT times the laser's range noise of the limit, from either scan: on
+# those pairs +0.02 ± 0.01 %; in the calibrations (bench/sensor_matrix.py --seeds 20) radii
+# −0.10 / −0.14 → −0.08 / −0.11 %, base −0.04 → −0.01 %, match scale 0.9986 → 0.9995.
+# Wider margins (3σ + 0.25 m, + 0.5 m) and testing the new point's own range, or its beam's
+# range to the reference line, did no better (measured ad hoc on the same kind of pairs).
 CLEAR_OF_LIMIT = 3.0
 
 
