@@ -37,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import table  # noqa: E402
-from sensor_matrix import LOW_COST, URG  # noqa: E402
+from sensor_matrix import LOW_COST, URG, _standard_error  # noqa: E402
 
 LASERS = {"URG-04LX-like (3 cm, 5.6 m, 240°)": URG,
           "low-cost (2 cm + 1 % of range, 12 m)": LOW_COST}
@@ -161,10 +161,10 @@ def main():
         for name in VARIANTS:
             values = np.array([r[name] for r in per_seed])
             diff = values - base
-            se = lambda v: v.std(ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0  # noqa: E731
             rows.append([label if name == "as the pipeline runs" else "", name,
-                         f"{values.mean():+.3f} ± {se(values):.3f}",
-                         "" if name == "as the pipeline runs" else f"{diff.mean():+.3f} ± {se(diff):.3f}"])
+                         f"{values.mean():+.3f} ± {_standard_error(values[:, None])[0]:.3f}",
+                         "" if name == "as the pipeline runs"
+                         else f"{diff.mean():+.3f} ± {_standard_error(diff[:, None])[0]:.3f}"])
     print(f"straight-driving scan pairs {PERIOD} s apart, {args.seeds} routes × {args.duration:.0f} s, "
           f"{args.draws} noise draws each; refinement from the true motion, weighed as the graph does")
     print(table(rows, ["laser", "variant", "error along the motion %", "minus the pipeline's %"]))

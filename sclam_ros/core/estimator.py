@@ -14,8 +14,8 @@ from sclam_ros.core.observability import Observability
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.wiring import wiring_problem
 from sclam_ros.core.solver import (
+    Influence,
     chain_correlated_covariance,
-    marginal_covariance,
     remaining_step,
     sandwich_covariance,
     solve_with_variance_components,
@@ -165,11 +165,13 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
     # needs anyway: the iteration cap alone says nothing about whether the answer moved.
     remaining, lu = remaining_step(problem, result.values, ["odometry", "laser"])
     values = result.values
-    model_cov = observability.reported_covariance(
-        marginal_covariance(problem, values, ["odometry", "laser"], lu=lu))
-    correlated_cov, _ = chain_correlated_covariance(problem, values, ["odometry", "laser"], lu=lu)
+    # One linearisation and solve at the answer for the three covariances.
+    blocks = ["odometry", "laser"]
+    influence = Influence.of(problem, values, blocks, lu)
+    model_cov = observability.reported_covariance(influence.marginal)
+    correlated_cov, _ = chain_correlated_covariance(problem, values, blocks, influence=influence)
     cov = observability.reported_covariance(
-        _at_least(correlated_cov, sandwich_covariance(problem, values, ["odometry", "laser"], lu=lu)))
+        _at_least(correlated_cov, sandwich_covariance(problem, values, blocks, influence=influence)))
     estimate = observability.reported(graph_mod.calibration_of(values), nominal)
     sigma = np.sqrt(np.diag(cov))
     if not np.all(np.isfinite(estimate)) or not np.all(np.isfinite(sigma)):

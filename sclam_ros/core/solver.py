@@ -448,12 +448,18 @@ def marginal_covariance(problem: Problem, values: Values, blocks, lu=None):
     """
     if lu is None:
         _, _, lu = factorize_information(problem, values)
+    cols, solved = _inverse_columns(problem, blocks, lu)
+    cov = solved[cols]
+    return 0.5 * (cov + cov.T)
+
+
+def _inverse_columns(problem: Problem, blocks, lu):
+    """(columns of the named blocks' free variables, H⁻¹ E: those columns of H⁻¹), one
+    solve with the factorisation `lu` for all of them."""
     cols = np.concatenate([problem.layout.columns(name) for name in blocks])
     unit = np.zeros((problem.layout.size, len(cols)))
     unit[cols, np.arange(len(cols))] = 1.0
-    solved = lu.solve(unit)
-    cov = solved[cols]
-    return 0.5 * (cov + cov.T)
+    return cols, lu.solve(unit)
 
 
 def redundancy_by_factor(problem: Problem, values: Values, probes: int = 40, seed: int = 0):
@@ -526,18 +532,25 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
     return result, dict(problem.scales)
 
 
-def _influence(problem: Problem, values: Values, blocks, lu=None):
-    """The linear system at `values`, H⁻¹ E (the named blocks' columns of H⁻¹, size × p)
-    and J H⁻¹ E (rows × p): how each whitened residual row moves those variables."""
-    system = problem.linear_system(values)
-    if lu is None:
-        hessian, _ = _normal_equations(system)
-        lu = LinearSolver(hessian, problem.banded_size)
-    cols = np.concatenate([problem.layout.columns(name) for name in blocks])
-    unit = np.zeros((problem.layout.size, len(cols)))
-    unit[cols, np.arange(len(cols))] = 1.0
-    solved = lu.solve(unit)
-    return system, solved[cols], system.jacobian @ solved
+@dataclass
+class Influence:
+    """How the whitened residuals move the named blocks at `values` (for the covariances
+    below, which share it): the linear system there, the blocks' marginal H⁻¹ (p, p), and
+    J H⁻¹ E (rows × p)."""
+
+    system: System
+    marginal: np.ndarray
+    rows: np.ndarray
+
+    @classmethod
+    def of(cls, problem: Problem, values: Values, blocks, lu=None) -> "Influence":
+        system = problem.linear_system(values)
+        if lu is None:
+            hessian, _ = _normal_equations(system)
+            lu = LinearSolver(hessian, problem.banded_size)
+        cols, solved = _inverse_columns(problem, blocks, lu)
+        marginal = solved[cols]
+        return cls(system, 0.5 * (marginal + marginal.T), system.jacobian @ solved)
 
 
 def chained_edges(factor):
@@ -556,7 +569,8 @@ def lag1_correlation(whitened, t, u) -> np.ndarray:
     return cross / np.maximum(np.mean(whitened**2, axis=0), 1e-300)
 
 
-def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=None):
+def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=None,
+                                influence: Optional[Influence] = None):
     """H⁻¹ (Jᵀ C J) H⁻¹ of the named blocks, with C the errors' covariance when consecutive
     edges of a factor with `chained_errors` are correlated; and those correlations.
 
@@ -572,9 +586,10 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
     −0.20 against −0.10 to −0.25 on the noisy ones, so the correction errs toward H⁻¹.
     Only cancellation is taken from it (ρ clipped to [−0.5, 0]: −0.5 is a scan's error
     alone, and C stays positive semidefinite); a positive correlation is the sandwich's to
-    report.
+    report. `influence`: Influence.of(problem, values, blocks, lu) if already at hand.
     """
-    system, cov, influence = _influence(problem, values, blocks, lu)
+    influence = influence or Influence.of(problem, values, blocks, lu)
+    system, cov = influence.system, influence.marginal
     correlations = {}
     factor_rows = iter(system.row_ranges)
     for factor in problem.factors:
@@ -587,13 +602,14 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
         t, u = chained_edges(factor)
         rho = np.clip(lag1_correlation(system.residual[start:stop].reshape(-1, d), t, u), -0.5, 0.0)
         correlations[name] = rho
-        rows = influence[start:stop].reshape(-1, d, influence.shape[1])
+        rows = influence.rows[start:stop].reshape(-1, d, influence.rows.shape[1])
         cross = np.einsum("tip,i,tiq->pq", rows[t], rho, rows[u])
         cov = cov + cross + cross.T
     return 0.5 * (cov + cov.T), correlations
 
 
-def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1, lu=None):
+def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1, lu=None,
+                        influence: Optional[Influence] = None):
     """Heteroscedasticity- and autocorrelation-consistent covariance of the named blocks.
 
     The model covariance H⁻¹ is right only if every edge's noise is independent with the
@@ -606,10 +622,12 @@ def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1,
     correlation −0.41 to −0.47, lags ≥ 2 below 0.05), for which the truncated (uniform)
     kernel at lag 1 is exact, where Newey-West's Bartlett weights would keep a third of
     the variance that cancels. The truncated estimate need not be positive semidefinite:
-    negative eigenvalues are clipped to zero.
+    negative eigenvalues are clipped to zero. `influence`: Influence.of(problem, values,
+    blocks, lu) if already at hand.
     """
-    system, _, influence = _influence(problem, values, blocks, lu)
-    cols = influence.shape[1]
+    influence = influence or Influence.of(problem, values, blocks, lu)
+    system = influence.system
+    cols = influence.rows.shape[1]
     # Scores of all measurement edges that end at the same pose are one time step's
     # contribution: the odometry and the laser edge of an interval are fitted to the same
     # pose difference, so their residuals are correlated and must be summed, not counted
@@ -626,7 +644,7 @@ def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1,
         if not factor.measurement:
             continue
         d = factor.edge_dim
-        scores = (influence[start:stop] * system.residual[start:stop, None]).reshape(-1, d, cols).sum(1)
+        scores = (influence.rows[start:stop] * system.residual[start:stop, None]).reshape(-1, d, cols).sum(1)
         if hasattr(factor, "pose_j"):
             np.add.at(per_time, factor.pose_j, scores)
         else:  # no time order known: independent edges
