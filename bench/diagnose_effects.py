@@ -8,7 +8,8 @@ Scenarios (PowerBot, office world, --duration s unless said):
                 x 0-11 m, y 9-16 m). Correct: floor_noise selected (and nothing else);
                 where the route never enters the room, nothing selected (it is clean).
                 Region overlap: time inside the found rectangle ∩ inside the room over
-                their union, on the true trajectory; size error: variance ratio vs 2.44.
+                their union, on the true trajectory; size error: variance ratio vs 2.44,
+                also in units of the reported σ of the ratio.
   speed_radius  each wheel's radius grows with its own speed, r·(1 + 0.1·u²) (not in
                 the library). Correct: no library effect selected, and the regressor
                 named first for what is unexplained is the speed (v, |v| or v·|v|).
@@ -116,6 +117,8 @@ def run_case(scenario, seed, duration, workdir):
         out["overlap"] = float(np.sum(true_in & found_in) / max(np.sum(true_in | found_in), 1))
         ratio = make_effect("floor_noise_area", effects["floor_noise_area"]).variance_ratio()
         out["size_error"] = float(floor["value"] / ratio - 1.0)
+        if floor["sigma"]:
+            out["size_z"] = float((floor["value"] - ratio) / floor["sigma"])
         out["floor_selected"] = floor["selected"]
     return out
 
@@ -129,10 +132,12 @@ def _row(scenario, results):
     top = causes.most_common(1)
     overlaps = [r["overlap"] for r in results if "overlap" in r]
     sizes = [r["size_error"] for r in results if "size_error" in r]
+    size_z = [r["size_z"] for r in results if "size_z" in r]
     named = sum(1 for r in results if not r["correct"] and expected(r) in r["alternatives"])
     return [scenario, len(results), f"{sum(r['correct'] for r in results)}/{len(results)}", named,
             (f"{min(overlaps):.2f}–{max(overlaps):.2f}" if overlaps else "–"),
-            (f"{min(sizes):+.0%}…{max(sizes):+.0%}" if sizes else "–"), false,
+            (f"{min(sizes):+.0%}…{max(sizes):+.0%}" if sizes else "–"),
+            (f"{min(size_z):+.1f}…{max(size_z):+.1f}" if size_z else "–"), false,
             (f"{top[0][0]} ({top[0][1]}/{len(results)})" if top else "–"),
             f"{np.median([r['seconds'] for r in results]):.0f}"]
 
@@ -154,7 +159,7 @@ def main():
         for (n, s), f in zip(cases, futures):
             r = f.result()
             results[n].append(r)
-            extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error") if k in r)
+            extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error", "size_z") if k in r)
             extra += "" if r.get("room_visited", True) else " (the route never enters the room)"
             extra += f", named as fitting as well: {r['alternatives']}" if r["alternatives"] else ""
             print(f"{n} seed {s}: selected {r['selected'] or 'none'}, cause {r['cause']} "
@@ -164,7 +169,7 @@ def main():
           "(90 s for the library's mean effects)")
     print(table([_row(n, results[n]) for n in names],
                 ["scenario", "seeds", "selected correctly", "else named as fitting as well",
-                 "region overlap", "size error",
+                 "region overlap", "size error", "size error / σ",
                  "false selections", "top regressor", "s per run"]))
 
 

@@ -59,6 +59,23 @@ def test_floor_region_and_ratio_from_synthetic_residuals():
     assert effect.describe()["region"]["angle_deg"] % 90 == pytest.approx(30, abs=2)
 
 
+def test_floor_ratio_sigma_is_its_spread_over_seeds():
+    """The reported σ of the variance ratio matches how far the ratio falls from the truth
+    over independent synthetic runs of a recording's size (a room of 150 of 600 edges)."""
+    z = []
+    for seed in range(30):
+        rng = np.random.default_rng(100 + seed)
+        m = 600
+        positions, map_xy = _route(rng, m)
+        room = map_xy[:m, 1] > 4.5  # the third leg and the top of the second
+        effect = LIBRARY["floor_noise"](EffectData(np.arange(m + 1.0), np.zeros((m + 1, 2)), positions))
+        pose = np.arange(m)
+        effect.fit(pose, pose, _disagreements(rng, np.where(room, 2.44, 1.0)).nll)
+        z.append((effect.value() - 2.44) / effect.value_sigma())
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    assert 0.7 < rms < 1.5, rms
+
+
 def test_noise_vs_speed_from_synthetic_residuals():
     rng = np.random.default_rng(4)
     m = 3000

@@ -25,11 +25,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
     parser.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
     parser.add_argument("--report", metavar="DIR", help="write residual figures (PNG) here")
-    from sclam_ros.diagnosis.diagnose import DEFAULT_CANDIDATES
+    from sclam_ros.diagnosis.diagnose import DEFAULT_CANDIDATES, FOLDS, NOISE_FOLDS
 
     parser.add_argument("--effects", metavar="NAME[,NAME...]",
                         help=f"effects to try (default: {','.join(DEFAULT_CANDIDATES)})")
-    parser.add_argument("--folds", type=int, default=5, help="time blocks of the cross-validation")
+    parser.add_argument("--folds", type=int, default=FOLDS,
+                        help="time blocks of the cross-validation (mean effects)")
+    parser.add_argument("--noise-folds", type=int, default=NOISE_FOLDS,
+                        help="folds of the noise effects' cross-validation, each of blocks "
+                             "spread over the run")
     parser.add_argument("--predict", metavar="OTHER_BAG",
                         help="another recording of the same robot: fit on BAG, report the error on it")
     parser.add_argument("--predict-params", metavar="PARAMS.yaml",
@@ -102,7 +106,7 @@ def run(args) -> int:
     recording = read_recording(args.bag, params,
                                progress=ProgressBar("reading + scan matching", not args.quiet))
     diagnosis = diagnose_keyframes(recording.keyframes, params, names, folds=args.folds,
-                                   progress=None if args.quiet else log.info)
+                                   noise_folds=args.noise_folds, progress=None if args.quiet else log.info)
     if args.predict:
         other_params = SclamParams.from_yaml(args.predict_params or args.params)
         other = read_recording(args.predict, other_params,

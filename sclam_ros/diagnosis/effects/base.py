@@ -131,6 +131,11 @@ class ModelEffect:
         """The one number reported for the effect (its first parameter by default)."""
         return float(np.asarray(p).ravel()[0])
 
+    def value_sigma(self):
+        """1σ of a fitted noise effect's value(), or None where it has none (a least-
+        squares effect's σ comes from the fit's covariance instead)."""
+        return None
+
     def describe(self) -> dict:
         """Further fields for the report (a noise region's place), none by default."""
         return {}

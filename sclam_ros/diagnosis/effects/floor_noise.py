@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sclam_ros.diagnosis.effects.base import ModelEffect
-from sclam_ros.diagnosis.effects.noise_fit import ml_factor, nll_profile
+from sclam_ros.diagnosis.effects.noise_fit import ml_factor, ml_factor_with_sigma, nll_profile
 
 
 def principal_angle(positions, min_step=1e-3) -> float:
@@ -80,6 +80,7 @@ class FloorNoise(ModelEffect):
         self.lo = np.full(2, np.inf)  # empty region until fitted
         self.hi = np.full(2, -np.inf)
         self.inside_scale = self.outside_scale = 1.0
+        self.log_ratio_sigma = None  # 1σ of ln(inside / outside), given the region
         self.edges_inside = 0
         self.seen = None  # KD-tree of the fitted edges' mid-points (map axes)
 
@@ -106,8 +107,13 @@ class FloorNoise(ModelEffect):
         self.seen = cKDTree(u)
         inside = self.inside(pose_i, pose_j)
         overall = ml_factor(nll, np.ones(len(u), bool))
-        self.inside_scale = ml_factor(nll, inside) / overall
-        self.outside_scale = ml_factor(nll, ~inside) / overall
+        inside_factor, inside_sigma = ml_factor_with_sigma(nll, inside)
+        outside_factor, outside_sigma = ml_factor_with_sigma(nll, ~inside)
+        self.inside_scale = inside_factor / overall
+        self.outside_scale = outside_factor / overall
+        # The two factors come from disjoint edges: their logs' variances add. The
+        # region's place is taken as given (its search makes the ratio err high).
+        self.log_ratio_sigma = float(np.hypot(inside_sigma, outside_sigma))
         self.edges_inside = int(inside.sum())
 
     def scale_of(self, pose_i, pose_j):
@@ -120,6 +126,10 @@ class FloorNoise(ModelEffect):
 
     def value(self, p=None):
         return float(self.inside_scale / self.outside_scale)
+
+    def value_sigma(self):
+        """1σ of value() (delta method on its logarithm), None before a region is fitted."""
+        return None if self.log_ratio_sigma is None else self.value() * self.log_ratio_sigma
 
     def describe(self) -> dict:
         """The region in the fitted map frame (the odometry frame: the first pose at the
