@@ -102,7 +102,30 @@ MAX_CORRECTION_ANGLE = 0.02  # rad
 # −0.10 / −0.14 → −0.08 / −0.11 %, base −0.04 → −0.01 %, match scale 0.9986 → 0.9995.
 # Wider margins (3σ + 0.25 m, + 0.5 m) and testing the new point's own range, or its beam's
 # range to the reference line, did no better (measured ad hoc on the same kind of pairs).
+# Which lines are clear of the limit is judged as BY_NEIGHBOURS says: an anchored line's
+# stretch of wall within the usable range, a return's neighbours' median range.
 CLEAR_OF_LIMIT = 3.0
+# BY_NEIGHBOURS: how a reference return is used (its wall line anchored, the return itself
+# as the residual's origin, or left out) is decided from its neighbours in beam order, the
+# return itself left out, never from where its own noise put it. Decisions taken from the
+# return's own position choose it for its noise, and the origins the refinement then
+# measures from sit off the walls (`python bench/reference_bias.py`, offsets along the
+# line's normal against the simulator's walls):
+#   - whether a wall is dense enough to anchor, by counting the returns within
+#     NORMAL_RADIUS of the return: on a wall seen at a glancing angle noise moves a return
+#     along the wall, and one pushed away from the laser lands where the beams are
+#     sparser, so the returns left to be their own origins sat beyond their walls (2 cm +
+#     1 % of range noise: +1.2 mm at 2-4 m, +0.8 mm at 4-6 m; now within 0.1-0.6 mm). The
+#     density is now the wall's length 2·NORMAL_RADIUS over the beam spacing on it, from
+#     the line through the neighbours (_densely_sampled); a return whose neighbours call the
+#     wall dense but whose own neighbourhood fails the anchor's tests is not used.
+#   - whether a return is clear of the range limit, by its own range: that is the
+#     driver's cut again. Now the median range of its neighbours (_neighbours_within).
+# Measured with `python bench/sensor_matrix.py --seeds 20 --duration 120` (paired seeds),
+# before → after: URG-04LX-like radii and base −0.08 / −0.11 / −0.01 → +0.01 / −0.02 /
+# +0.08 %, match scale 0.9995 → 0.9998; low-cost +0.11 / +0.08 / +0.09 → +0.06 / +0.03 /
+# +0.04 % (RMS 0.26 / 0.24 / 0.31 → 0.22 / 0.20 / 0.26 %), match scale 1.0015 → 1.0009;
+# 5 cm within its standard errors (+0.03 / +0.01 / +0.04 → +0.05 / +0.03 / +0.06 %).
 
 
 @dataclass
@@ -123,7 +146,9 @@ class ReferenceScan:
         noise: None fits each line over NORMAL_NEIGHBOURS beams and measures residuals from
         the points themselves; a noisy laser's measured range noise (m) fits it over
         NORMAL_RADIUS of wall and measures them from the fitted line (ANCHOR_NEIGHBOURS).
-        usable_range (m): lines farther than it are left out (see CLEAR_OF_LIMIT)."""
+        usable_range (m): lines farther than it are left out (see CLEAR_OF_LIMIT).
+        `points` are in beam order (scan_to_points): which way each return is used is
+        judged from its neighbours in that order (BY_NEIGHBOURS)."""
         points = np.asarray(points, float)[:, :2]
         if len(points) < NORMAL_NEIGHBOURS + 1:
             return None
@@ -137,17 +162,60 @@ class ReferenceScan:
             normals, across, along, centres = _line_fit(points, idx, near)
             straight = (across < MAX_LINE_SPREAD) | (
                 (across < WIDE_STRAIGHTNESS * along) & (across < WIDE_NOISE_SPREAD * noise))
-            on_line = ((dist <= NORMAL_RADIUS).sum(axis=1) >= ANCHOR_NEIGHBOURS) & (
+            dense = _densely_sampled(points, usable_range)
+            on_line = dense & ((dist <= NORMAL_RADIUS).sum(axis=1) >= ANCHOR_NEIGHBOURS) & (
                 across < ANCHOR_SPREAD * noise)
+            # A return is its own residual origin only where its neighbours say the wall is
+            # sparse. Where they say it is dense but its own neighbourhood fails the anchor's
+            # tests (a gap, the range limit's cut, its own noise), it is not used.
+            straight &= on_line | ~dense
             anchors = np.where(on_line[:, None], centres, points)
+            # An anchored line is clear of the limit by _densely_sampled's account.
+            clear = on_line | _neighbours_within(points, usable_range)
         else:
             normals, across, along, _ = _line_fit(points, idx)
             straight = across < MAX_LINE_SPREAD
-        keep = straight & (along > 0) & (np.hypot(anchors[:, 0], anchors[:, 1]) <= usable_range)
+            clear = _neighbours_within(points, usable_range)
+        keep = straight & (along > 0) & clear
         if keep.sum() < 10:
             return None
         kept_points = points[keep]
         return cls(kept_points, normals[keep], cKDTree(kept_points), anchors[keep], usable_range)
+
+
+def _beam_neighbours(points):
+    """(idx (N, 6), exists (N, 6)): the three returns before and after each one in beam
+    order, the return itself left out; `exists` is False past either end."""
+    n = len(points)
+    idx = np.arange(n)[:, None] + np.array([-3, -2, -1, 1, 2, 3])
+    exists = (idx >= 0) & (idx < n)
+    return np.clip(idx, 0, n - 1), exists
+
+
+def _densely_sampled(points, usable_range=np.inf):
+    """(N,) bool: whether the beams sample the wall at each return densely enough for its
+    line to be anchored (ANCHOR_NEIGHBOURS beams within NORMAL_RADIUS) and that stretch
+    of wall lies within the usable range, judged from the line through its neighbours in
+    beam order (BY_NEIGHBOURS): the wall's length 2·NORMAL_RADIUS over the beams' spacing
+    on it, distance·spacing / cos(incidence)."""
+    idx, exists = _beam_neighbours(points)
+    normals, _, _, centres = _line_fit(points, idx, exists)
+    bearing = np.arctan2(points[:, 1], points[:, 0])
+    spacing = float(np.median(np.abs(np.diff(bearing))))  # rad between consecutive returns
+    distance = np.hypot(centres[:, 0], centres[:, 1])
+    cos_incidence = np.abs(np.sum(normals * centres, axis=1)) / np.maximum(distance, 1e-9)
+    return ((2.0 * NORMAL_RADIUS * cos_incidence >= ANCHOR_NEIGHBOURS * distance * spacing)
+            & (distance + NORMAL_RADIUS <= usable_range))
+
+
+def _neighbours_within(points, usable_range):
+    """(N,) bool: the median range of each return's neighbours in beam order is within
+    `usable_range` (BY_NEIGHBOURS; all True when it is infinite)."""
+    if not np.isfinite(usable_range):
+        return np.ones(len(points), bool)
+    idx, exists = _beam_neighbours(points)
+    ranges = np.where(exists, np.hypot(points[idx, 0], points[idx, 1]), np.nan)
+    return np.nanmedian(ranges, axis=1) <= usable_range
 
 
 def _line_fit(points, idx, near=None):

@@ -1,0 +1,132 @@
+"""Where the point-to-line refinement's reference walls sit, against the simulator's walls.
+
+A scan match is refined by measuring each new return's distance to the previous scan's
+wall lines (frontend/point_to_line.py). Each line passes through a residual origin: on a
+noisy laser, the centroid of the wall around the reference return where the wall is
+densely sampled (an "anchor"), else the return itself. If those origins sit beyond or in
+front of the true walls, the matches come out long or short. Here the reference scans of
+the default drive (PowerBot, office, `--seeds` routes of `--duration` s, one scan every
+0.3 s, turns included) are ray cast with each laser's noise model, turned into reference
+scans as a recording's matcher does (range noise judged on the first 30 scans, the wall
+fit and range-limit clearance that follow from it), and every origin the refinement
+would use is compared with the true wall along the line's normal (+: beyond the wall,
+away from the laser). Per laser, per kind of origin and per true range of the return:
+mean offset in mm ± its standard error over all origins, and the share of the origins.
+
+Run: .venv/bin/python bench/reference_bias.py [--seeds 4] [--duration 60] [--jobs 2]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import table  # noqa: E402
+from sensor_matrix import LOW_COST, ROWS, URG  # noqa: E402
+
+LASERS = {"URG-04LX-like (3 cm, 5.6 m, 240°, 683 b)": URG,
+          "5 cm (20 m, 360°, 360 b)": ROWS["10 Hz, 360°, 360 b, 20 m, 5 cm"],
+          "low-cost (2 cm + 1 % of range, 12 m, 720 b)": LOW_COST,
+          "  without mixed pixels": dict(LOW_COST, laser=dict(LOW_COST["laser"], mixed_pixels=0.0)),
+          "  without mixed pixels and the 1 % of range": dict(
+              LOW_COST, laser=dict(LOW_COST["laser"], mixed_pixels=0.0, range_noise_per_m=0.0))}
+PERIOD = 0.3  # s between reference scans (the matching period, frontend/decimation.py)
+BINS = ((0.0, 2.0), (2.0, 4.0), (4.0, 6.0), (6.0, np.inf))  # true range of the return, m
+MOUNT = np.array([0.2258, 0.0026, 0.0017])  # the simulated PowerBot's laser
+
+
+def _route_poses(world, duration, seed):
+    """Laser poses of one simulated route, PERIOD apart."""
+    from sclam_ros.core import se2
+    from sclam_ros.sim.motion import TrueKinematics
+    from sclam_ros.sim.record import CONTROL_RATE
+    from sclam_ros.sim.robots import get_preset, true_calibration
+    from sclam_ros.sim.trajectory import simulate_trajectory
+
+    preset = get_preset("powerbot")
+    truth = true_calibration(preset, None)
+    kinematics = TrueKinematics(truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"])
+    route = simulate_trajectory(world, kinematics, duration, seed, preset.footprint_radius, CONTROL_RATE)
+    return se2.compose(route.pose_at(np.arange(0.0, route.duration, PERIOD)), MOUNT)
+
+
+def _offsets(job):
+    """(kind (n,) 0 own return / 1 anchor, true range (n,), offset (n,) m) of every residual
+    origin of one route's reference scans."""
+    seed, laser, duration = job
+    from sclam_ros.core.inputs import Scan
+    from sclam_ros.frontend import point_to_line
+    from sclam_ros.frontend.scan_matching import scan_to_points
+    from sclam_ros.sim.sensors import LaserModel
+    from sclam_ros.sim.world import office_world
+
+    world = office_world()
+    model = LaserModel(beams=laser.get("beams", 360), range_noise=laser.get("range_noise", 0.01),
+                       **laser.get("laser", {}))
+    angles = model.angles()
+    rng = np.random.default_rng(seed)
+    poses = _route_poses(world, duration, seed)
+    true = [world.raycast(p, angles, model.range_max) for p in poses]
+    measured = [model.measure(t, rng) for t in true]
+    scans = [Scan(0.0, r, model.angle_min, model.angle_increment, model.range_min, model.range_max)
+             for r in measured]
+    # The laser's noise judged as RefinedScanMatcher judges it, and what follows from it.
+    judged = [n for n in map(point_to_line.range_noise, scans[:point_to_line.NOISE_SCANS]) if n is not None]
+    noise = float(np.median(judged))
+    fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
+    usable = model.range_max - (point_to_line.CLEAR_OF_LIMIT * noise if noise <= point_to_line.NOT_A_NOISE else 0.0)
+    kinds, ranges, offsets = [], [], []
+    for pose, scan, r_true in zip(poses, scans, true):
+        points = scan_to_points(scan)[:, :2]
+        reference = point_to_line.ReferenceScan.from_points(points, fit_noise, usable)
+        if reference is None:
+            continue
+        beam_of = {tuple(p): i for i, p in zip(np.flatnonzero(np.isfinite(scan.ranges)), points)}
+        beams = np.array([beam_of[tuple(p)] for p in reference.points])
+        anchored = np.any(reference.anchors != reference.points, axis=1)
+        origin = reference.anchors
+        bearing = np.arctan2(origin[:, 1], origin[:, 0])
+        wall = world.raycast(pose, bearing, 2.0 * model.range_max)  # true wall on the origin's bearing
+        ok = np.isfinite(wall)
+        wall_point = np.column_stack([wall * np.cos(bearing), wall * np.sin(bearing)])
+        away = np.sign(np.sum(reference.normals * origin, axis=1))  # normal oriented away from the laser
+        offset = np.sum((origin - wall_point) * reference.normals, axis=1) * away
+        kinds.append(anchored[ok])
+        ranges.append(r_true[beams][ok])
+        offsets.append(offset[ok])
+    return np.concatenate(kinds), np.concatenate(ranges), np.concatenate(offsets), noise
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--duration", type=float, default=60.0)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    rows = []
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for label, laser in LASERS.items():
+            runs = list(pool.map(_offsets, [(seed, laser, args.duration) for seed in range(1, args.seeds + 1)]))
+            kind, true_range, offset = (np.concatenate([r[i] for r in runs]) for i in range(3))
+            noise = np.median([r[3] for r in runs])
+            for value, name in ((1, "anchor (wall centroid)"), (0, "own return")):
+                cells = []
+                for lo, hi in BINS:
+                    m = (kind == value) & (true_range >= lo) & (true_range < hi)
+                    cells.append(f"{1e3 * offset[m].mean():+.2f} ± {1e3 * offset[m].std() / np.sqrt(m.sum()):.2f}"
+                                 if m.sum() >= 50 else "–")
+                share = np.mean(kind == value)
+                rows.append([label if value == 1 else "", f"{1e3 * noise:.0f}" if value == 1 else "",
+                             name, f"{share:.0%}", *cells])
+    print(f"{args.seeds} routes × {args.duration:.0f} s, a reference scan every {PERIOD} s; offset of the "
+          "residual origin from the true wall along the line's normal, mm (+: beyond the wall)")
+    print(table(rows, ["laser", "judged noise mm", "origin", "share",
+                       *(f"{lo:g}–{hi:g} m" if np.isfinite(hi) else f"≥ {lo:g} m" for lo, hi in BINS)]))
+
+
+if __name__ == "__main__":
+    main()
