@@ -115,7 +115,8 @@ CLEAR_OF_LIMIT = 3.0
 #     NORMAL_RADIUS of the return: on a wall seen at a glancing angle noise moves a return
 #     along the wall, and one pushed away from the laser lands where the beams are
 #     sparser, so the returns left to be their own origins sat beyond their walls (2 cm +
-#     1 % of range noise: +1.2 mm at 2-4 m, +0.8 mm at 4-6 m; now within 0.1-0.6 mm). The
+#     1 % of range noise, no mixed pixels: +1.2 mm at 2-4 m, +0.8 mm at 4-6 m; now +0.1 and
+#     +0.6 mm). The
 #     density is now the wall's length 2·NORMAL_RADIUS over the beam spacing on it, from
 #     the line through the neighbours (_densely_sampled); a return whose neighbours call the
 #     wall dense but whose own neighbourhood fails the anchor's tests is not used.
