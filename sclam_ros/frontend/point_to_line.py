@@ -116,14 +116,14 @@ CLEAR_OF_LIMIT = 3.0
 #     along the wall, and one pushed away from the laser lands where the beams are
 #     sparser, so the returns left to be their own origins sat beyond their walls (2 cm +
 #     1 % of range noise, no mixed pixels: +1.2 mm at 2-4 m, +0.8 mm at 4-6 m; now +0.1 and
-#     +0.6 mm). The
-#     density is now the wall's length 2·NORMAL_RADIUS over the beam spacing on it, from
-#     the line through the neighbours (_densely_sampled); a return whose neighbours call the
-#     wall dense but whose own neighbourhood fails the anchor's tests is not used.
+#     +0.6 mm). The density is now the wall's length 2·NORMAL_RADIUS over the beam spacing
+#     on it, from the line through the neighbours (_densely_sampled); a return whose
+#     neighbours call the wall dense but whose own neighbourhood fails the anchor's tests
+#     is not used.
 #   - whether a return is clear of the range limit, by its own range: that is the
 #     driver's cut again. Now the median range of its neighbours (_neighbours_within).
 # Measured with `python bench/sensor_matrix.py --seeds 20 --duration 120` (paired seeds),
-# before → after: URG-04LX-like radii and base −0.08 / −0.11 / −0.01 → +0.01 / −0.02 /
+# before → after: URG-04LX-like radii and base −0.08 / −0.11 / −0.01 → +0.01 / −0.03 /
 # +0.08 %, match scale 0.9995 → 0.9998; low-cost +0.11 / +0.08 / +0.09 → +0.06 / +0.03 /
 # +0.04 % (RMS 0.26 / 0.24 / 0.31 → 0.22 / 0.20 / 0.26 %), match scale 1.0015 → 1.0009;
 # 5 cm within its standard errors (+0.03 / +0.01 / +0.04 → +0.05 / +0.03 / +0.06 %).
@@ -202,7 +202,8 @@ def _densely_sampled(points, usable_range=np.inf):
     idx, exists = _beam_neighbours(points)
     normals, _, _, centres = _line_fit(points, idx, exists)
     bearing = np.arctan2(points[:, 1], points[:, 0])
-    spacing = float(np.median(np.abs(np.diff(bearing))))  # rad between consecutive returns
+    # rad between consecutive returns: the median holds while fewer than half are missing
+    spacing = float(np.median(np.abs(np.diff(bearing))))
     distance = np.hypot(centres[:, 0], centres[:, 1])
     cos_incidence = np.abs(np.sum(normals * centres, axis=1)) / np.maximum(distance, 1e-9)
     return ((2.0 * NORMAL_RADIUS * cos_incidence >= ANCHOR_NEIGHBOURS * distance * spacing)
