@@ -176,3 +176,24 @@ def test_change_point_statistic_without_a_change_is_small():
     # max of 11 χ²(2): median ≈ 2 ln(11 / ln 2) ≈ 5.5; tail: P(> 13.8) ≤ 11 · e^(−6.9) ≈ 1 %.
     assert 2.0 < np.median(statistics) < 9.0
     assert np.mean(np.array(statistics) > 13.8) < 0.03
+
+
+def test_published_sigma_of_the_radii_is_about_the_batch_one(tmp_path):
+    """The window is solved with the stated noise model, which overstates the noise (the
+    batch's variance factors: odometry ~0.4, scan matches ~0.1); the published σ is scaled
+    by the window's a-posteriori variance factor. On a clean 150 s recording, which the
+    window holds whole, the radii's σ then comes out near the batch calibration's (honest:
+    bench/honest_sigma.py); with the stated model it was 2.1-2.5 times it."""
+    from sclam_ros.cli.calibrate import track
+    from sclam_ros.core.estimator import calibrate_keyframes
+
+    out = tmp_path / "bag"
+    simulate(out, duration=150.0, seed=4)
+    params = SclamParams.from_yaml(out / "params.yaml")
+    rows, _, _ = track(out, params)
+    recording = read_recording(out, params)
+    batch = calibrate_keyframes(recording.keyframes, params, recording.rejections)
+    n = len(CALIBRATION_KEYS)
+    for i, key in enumerate(CALIBRATION_KEYS[:2]):
+        ratio = rows[-1][1 + n + i] / batch.sigma[key]
+        assert 0.6 < ratio < 1.6, (key, ratio)
