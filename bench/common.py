@@ -30,6 +30,24 @@ def simulate_and_calibrate(robot, duration, seed, true_overrides=None, nominal_o
     return truth, result, time.perf_counter() - start, out
 
 
+# The simulated PowerBot's laser mount on base_link (x, y m, yaw rad).
+POWERBOT_LASER_MOUNT = np.array([0.2258, 0.0026, 0.0017])
+
+
+def powerbot_route(world, duration, seed):
+    """The default drive of a simulated PowerBot through `world` (sim Trajectory), as
+    `sclam simulate` drives it: for benches that ray cast their own scans along it."""
+    from sclam_ros.sim.motion import TrueKinematics
+    from sclam_ros.sim.record import CONTROL_RATE
+    from sclam_ros.sim.robots import get_preset, true_calibration
+    from sclam_ros.sim.trajectory import simulate_trajectory
+
+    preset = get_preset("powerbot")
+    truth = true_calibration(preset, None)
+    kinematics = TrueKinematics(truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"])
+    return simulate_trajectory(world, kinematics, duration, seed, preset.footprint_radius, CONTROL_RATE)
+
+
 def errors(truth, result):
     return {k: result.estimate[k] - truth[k] for k in CALIBRATION_KEYS}
 

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import POWERBOT_LASER_MOUNT, powerbot_route, table  # noqa: E402
 from sensor_matrix import LOW_COST, URG, _standard_error  # noqa: E402
 
 LASERS = {"URG-04LX-like (3 cm, 5.6 m, 240°)": URG,
@@ -57,15 +57,8 @@ STRAIGHT = 0.02  # rad: at most this much turn between the two scans
 def _pairs(world, laser_mount, duration, seed):
     """(earlier, later, true motion) laser poses of the straight-driving pairs of a route."""
     from sclam_ros.core import se2
-    from sclam_ros.sim.motion import TrueKinematics
-    from sclam_ros.sim.record import CONTROL_RATE
-    from sclam_ros.sim.robots import get_preset, true_calibration
-    from sclam_ros.sim.trajectory import simulate_trajectory
 
-    preset = get_preset("powerbot")
-    truth = true_calibration(preset, None)
-    kinematics = TrueKinematics(truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"])
-    route = simulate_trajectory(world, kinematics, duration, seed, preset.footprint_radius, CONTROL_RATE)
+    route = powerbot_route(world, duration, seed)
     times = np.arange(0.0, route.duration - PERIOD, PERIOD)
     laser = se2.compose(route.pose_at(times), laser_mount)
     motion = se2.between(laser[1:], laser[:-1])
@@ -105,7 +98,7 @@ def _laser_seed(job):
     world = office_world()
     model = LaserModel(beams=laser["beams"], range_noise=laser["range_noise"], **laser["laser"])
     angles = model.angles()
-    start, motion = _pairs(world, np.array([0.2258, 0.0026, 0.0017]), duration, seed)
+    start, motion = _pairs(world, POWERBOT_LASER_MOUNT, duration, seed)
 
     def scan(ranges):
         return Scan(0.0, ranges, model.angle_min, model.angle_increment, model.range_min, np.inf)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import POWERBOT_LASER_MOUNT, powerbot_route, table  # noqa: E402
 from sensor_matrix import LOW_COST, ROWS, URG  # noqa: E402
 
 LASERS = {"URG-04LX-like (3 cm, 5.6 m, 240°, 683 b)": URG,
@@ -36,22 +36,14 @@ LASERS = {"URG-04LX-like (3 cm, 5.6 m, 240°, 683 b)": URG,
               LOW_COST, laser=dict(LOW_COST["laser"], mixed_pixels=0.0, range_noise_per_m=0.0))}
 PERIOD = 0.3  # s between reference scans (the matching period, frontend/decimation.py)
 BINS = ((0.0, 2.0), (2.0, 4.0), (4.0, 6.0), (6.0, np.inf))  # true range of the return, m
-MOUNT = np.array([0.2258, 0.0026, 0.0017])  # the simulated PowerBot's laser
 
 
 def _route_poses(world, duration, seed):
     """Laser poses of one simulated route, PERIOD apart."""
     from sclam_ros.core import se2
-    from sclam_ros.sim.motion import TrueKinematics
-    from sclam_ros.sim.record import CONTROL_RATE
-    from sclam_ros.sim.robots import get_preset, true_calibration
-    from sclam_ros.sim.trajectory import simulate_trajectory
 
-    preset = get_preset("powerbot")
-    truth = true_calibration(preset, None)
-    kinematics = TrueKinematics(truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"])
-    route = simulate_trajectory(world, kinematics, duration, seed, preset.footprint_radius, CONTROL_RATE)
-    return se2.compose(route.pose_at(np.arange(0.0, route.duration, PERIOD)), MOUNT)
+    route = powerbot_route(world, duration, seed)
+    return se2.compose(route.pose_at(np.arange(0.0, route.duration, PERIOD)), POWERBOT_LASER_MOUNT)
 
 
 def _offsets(job):

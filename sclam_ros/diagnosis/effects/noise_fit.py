@@ -15,24 +15,32 @@ LOG_RANGE = np.log(100.0)  # factors searched within [1/100, 100]
 
 def ml_factor(nll, inside) -> float:
     """The one factor on the odometry covariance of the `inside` edges minimising their NLL."""
-    return ml_factor_with_sigma(nll, inside)[0]
+    return float(np.exp(_best_log_factor(_region_nll(nll, inside))))
 
 
 def ml_factor_with_sigma(nll, inside, step=0.05) -> tuple:
     """(factor, 1σ of its logarithm): the ML factor of ml_factor and the σ from the NLL's
     curvature in the log factor there (finite differences `step` apart; inf where the
     edges do not curve it, e.g. none inside)."""
+    region_nll = _region_nll(nll, inside)
+    best = _best_log_factor(region_nll)
+    curvature = (region_nll(best + step) - 2.0 * region_nll(best) + region_nll(best - step)) / step**2
+    sigma = 1.0 / np.sqrt(curvature) if curvature > 0 else np.inf
+    return float(np.exp(best)), float(sigma)
+
+
+def _region_nll(nll, inside):
+    """log factor of the `inside` edges -> their summed NLL (the other edges at factor 1)."""
     def region_nll(log_factor):
         factors = np.ones(len(inside))
         factors[inside] = np.exp(log_factor)
         return float(np.sum(nll(factors)[inside]))
+    return region_nll
 
-    best = minimize_scalar(region_nll, bounds=(-LOG_RANGE, LOG_RANGE), method="bounded",
-                           options={"xatol": 1e-4})
-    curvature = (region_nll(best.x + step) - 2.0 * region_nll(best.x)
-                 + region_nll(best.x - step)) / step**2
-    sigma = 1.0 / np.sqrt(curvature) if curvature > 0 else np.inf
-    return float(np.exp(best.x)), float(sigma)
+
+def _best_log_factor(region_nll) -> float:
+    return float(minimize_scalar(region_nll, bounds=(-LOG_RANGE, LOG_RANGE), method="bounded",
+                                 options={"xatol": 1e-4}).x)
 
 
 def nll_profile(nll, m, log_factors) -> np.ndarray:
