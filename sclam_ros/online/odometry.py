@@ -18,9 +18,10 @@ class OdometryIntegrator:
 
     Uses its own :class:`EncoderStream` (unwrap, ticks → rad, segments at gaps and clock
     jumps) so that an increment across a break is never integrated. The covariance is the
-    wheel noise accumulated step by step plus A Σ_k Aᵀ, where A = ∂pose/∂k is carried along
-    the path: the calibration error is the same at every step, so it is propagated through
-    the whole path, not added as if independent per step.
+    wheel noise (and the path's uncertainty between samples) accumulated step by step plus
+    A Σ_k Aᵀ, where A = ∂pose/∂k is carried along the path: the calibration error is the
+    same at every step, so it is propagated through the whole path, not added as if
+    independent per step.
     """
 
     def __init__(self, params):
@@ -43,8 +44,12 @@ class OdometryIntegrator:
             return True
         dphi = angles.angles - last.angles
         motion = kinematics.forward(dphi, k)
+        # Between slow encoder samples the path may run beside the constant-speed arc
+        # (EncoderStream._path_variance): without it the ~/odom covariance at 1-2 Hz
+        # encoders is that of a path known exactly between samples.
         m_cov = kinematics.motion_covariance(
-            dphi, k, self.params.wheel_noise, lateral_noise=self.params.lateral_noise
+            dphi, k, self.params.wheel_noise, lateral_noise=self.params.lateral_noise,
+            path_variance=max(angles.path_variance - last.path_variance, 0.0),
         )
         c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
