@@ -180,8 +180,8 @@ def test_gap_and_counter_reset_break_segments_and_pairs_are_dropped():
 
 
 def test_slow_odometry_is_interpolated_and_only_a_real_gap_breaks_it():
-    """A base reporting at 1.6 Hz (0.625 s apart, beyond the default 0.5 s gap): after its
-    first steps the stream judges gaps by its own period, every scan between samples gets
+    """A base reporting at 1.6 Hz (0.625 s apart, beyond the default 0.5 s gap): the stream
+    judges gaps by its own period, from its first steps on; every scan between samples gets
     exact wheel angles, and a silence of ten periods still starts a new segment."""
     stream = EncoderStream(ticks_per_revolution=TICKS)
     sync = ScanSynchronizer(stream)
@@ -194,13 +194,25 @@ def test_slow_odometry_is_interpolated_and_only_a_real_gap_breaks_it():
         for k in range(6):
             synced += sync.add_scan(scan_at(t + 0.1 * k + 0.01))
     synced += sync.flush()
-    assert stream.segment_breaks["gap"] == 1 + 3  # the silence, and the first steps (rate unknown)
-    late = [s for s in synced if s.scan.stamp > 4 * period]
-    assert len(late) > 250
-    for s in late:
+    assert stream.segment_breaks == {"gap": 1}  # the silence only
+    # Every scan from the first sample on is paired, but those of the 11 intervals across
+    # the silence and the 6 after the last sample.
+    assert len(synced) == 6 * (60 - 11 - 1)
+    for s in synced:
         np.testing.assert_allclose(s.wheels.angles, [speed * s.scan.stamp * RAD_PER_TICK,
                                                      2 * speed * s.scan.stamp * RAD_PER_TICK], rtol=1e-9)
     assert not any(30 * period < s.scan.stamp < 39 * period for s in synced)
+
+
+def test_a_stale_first_encoder_sample_is_a_gap_while_the_rate_is_unknown():
+    """A first message seconds older than the stream that follows (a latched last sample):
+    the robot may have moved meanwhile, so it is not interpolated across."""
+    stream = EncoderStream(ticks_per_revolution=TICKS)
+    stream.add(0.0, 0.0, 0.0)
+    for i in range(10):
+        stream.add(5.0 + 0.05 * i, 100.0 + i, 100.0 + i)
+    assert stream.segment_breaks == {"gap": 1}
+    assert stream.wheel_angles_at(2.5) is None
 
 
 def test_scans_wait_for_late_encoders_and_are_dropped_after_the_latency_limit():

@@ -58,6 +58,11 @@ class SyncConfig:
     # rate instead: a gap is then more than gap_periods of its median period.
     max_gap: float = 0.5
     gap_periods: float = 5.0
+    # Before the stream knows its period (its first MIN_PERIOD_SAMPLE steps), a step up to
+    # this long is judged against the steps seen so far, itself included, so that a 1-2 Hz
+    # base loses none of its first seconds; a longer first step (a stale first message)
+    # is a gap whatever the rate turns out to be.
+    max_first_period: float = 2.0
     # A stamp earlier than the newest one by more than this is a clock jump (a bag played in
     # a loop, a clock set back): the history is dropped and a new segment starts. Smaller
     # steps back are single out-of-order samples and are rejected.
@@ -158,11 +163,17 @@ class EncoderStream:
                 self.clear()
                 cause = "clock_jump_backward"
             else:
-                # Every step counts toward the period, gaps too: the median ignores the rare
-                # real gap, and a slow stream's first steps (all "gaps" by the default limit)
-                # must be able to teach the stream its rate.
-                if step > self.max_gap:
+                if len(self._periods) < MIN_PERIOD_SAMPLE:  # the period is not known yet
+                    limit = self.config.max_gap
+                    if step <= self.config.max_first_period:
+                        limit = max(limit, self.config.gap_periods
+                                    * float(np.median([*self._periods, step])))
+                else:
+                    limit = self.max_gap
+                if step > limit:
                     cause = "gap"
+                # Every step counts toward the period, gaps too: the median ignores the rare
+                # real gap, and a slow stream's first steps must teach the stream its rate.
                 self._periods.append(step)
                 # The limit follows the rate: judged again after every PERIOD_SAMPLE steps,
                 # and at every step until the sample is full.
