@@ -218,7 +218,7 @@ def _print_tick_stamp_check(runs_src):
     """Do the ticks belong to their own line's stamp? Jittered line intervals make the
     per-line wheel speed smooth only with the stamps the ticks were sampled at."""
     print("Per-line wheel speed change [rad/s], median / 99th percentile: ticks with their own "
-          "line's stamp vs with the next line's (the scan re-pairing of an earlier version):")
+          "line's stamp vs with the next line's (each scan paired with the next line's ticks):")
     for src in runs_src:
         stamps, ticks, _ = read_breezyslam(src)
         own = _per_line_speed_changes(stamps, ticks)
