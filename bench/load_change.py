@@ -12,7 +12,11 @@ Per scenario, worst over its seeds (errors against the truth at each estimate's 
   detection delay: from the (first) change to the first detected radius change;
   radius error from 30 s / 60 s after the (last) change (ramp: after its start), %;
   wheel base and laser error from SETTLE s on (the window has filled), changes included;
-  false alarms per hour: detections before any change (all of the clean run).
+  false alarms per hour: detections before any change (all of the clean run);
+  radius |err|/σ: each published radius' error over its published σ, RMS and worst over
+  the seeds, in the 30 s after the (first) change (while the estimate lags the new radii)
+  and from 30 s after the last change on (clean run: from SETTLE s on); and how long after
+  the (first) change both are first within 2σ of the truth.
 
 Run: .venv/bin/python bench/load_change.py [--seeds 5] [--jobs 2] [--scenarios ...]
 """
@@ -68,7 +72,8 @@ def run_one(job):
     for estimate in iter_outputs(bag, params, calibrator):
         if estimate is not None:
             rows.append([estimate.stamp - truth["start_time"],
-                         *(estimate.values[k] for k in CALIBRATION_KEYS), calibrator.radius_changes])
+                         *(estimate.values[k] for k in CALIBRATION_KEYS), calibrator.radius_changes,
+                         *(estimate.sigma[k] for k in RADII)])
     a = np.array(rows)
     t = a[:, 0]
     effect_set = [make_effect(n, v) for n, v in effects.items()]
@@ -78,6 +83,7 @@ def run_one(job):
     for effect in effect_set:
         r_left, r_right = effect.radii(t, r_left, r_right)
     radius_error = 100 * np.abs(np.column_stack([a[:, 1] / r_left - 1, a[:, 2] / r_right - 1]))
+    radius_z = np.abs(np.column_stack([a[:, 1] - r_left, a[:, 2] - r_right])) / a[:, 8:10]
     settled = t > SETTLE
     base_error = 100 * np.abs(a[settled, 3] / truth["wheel_base"] - 1)
     laser_mm = 1000 * np.hypot(a[settled, 4] - truth["laser_x"], a[settled, 5] - truth["laser_y"])
@@ -89,6 +95,7 @@ def run_one(job):
         out["false_alarms"] = detections[-1]
         out["hours_clean"] = (t[-1] - SETTLE) / 3600.0
         out["radius_settled"] = radius_error[settled].max()
+        out["z_lag"], out["z_after"] = None, radius_z[settled]
         return out
     before = t < first
     out["false_alarms"] = detections[before][-1] if before.any() else 0.0
@@ -97,7 +104,24 @@ def run_one(job):
     out["delay"] = t[after[0]] - first if len(after) else math.nan
     out["from30"] = radius_error[t >= last + 30.0].max()
     out["from60"] = radius_error[t >= last + 60.0].max()
+    out["z_lag"] = radius_z[(t >= first) & (t < first + 30.0)]
+    out["z_after"] = radius_z[t >= last + 30.0]
+    out["covered"] = covered_from(t, radius_z.max(axis=1), first)
     return out
+
+
+def covered_from(t, z, start) -> float:
+    """Seconds after `start` until z is first below 2 (nan: never)."""
+    inside = np.flatnonzero((t >= start) & (z < 2.0))
+    return t[inside[0]] - start if len(inside) else math.nan
+
+
+def z_cell(samples) -> str:
+    """RMS / worst of |err|/σ pooled over seeds (both radii), or '-'."""
+    if not samples:
+        return "-"
+    z = np.concatenate([s.ravel() for s in samples])
+    return f"{math.sqrt(np.mean(z ** 2)):.1f} / {z.max():.1f}"
 
 
 def main():
@@ -123,17 +147,25 @@ def main():
             delay = f"{np.nanmedian(delays):.0f} / {np.nanmax(delays):.0f}" if missed < len(delays) else "never"
             delay += f" ({missed} missed)" if missed else ""
             radius = [f"{worst('from30'):.3f}", f"{worst('from60'):.3f}"]
+            covered = [r["covered"] for r in mine]
+            covered = (f"{np.nanmedian(covered):.0f} / {np.nanmax(covered):.0f}"
+                       + (f" ({sum(map(math.isnan, covered))} never)" if any(map(math.isnan, covered)) else ""))
         else:
-            delay = "-"
+            delay = covered = "-"
             radius = [f"{worst('radius_settled'):.3f} (all)", "-"]
         rows.append([name, len(mine), delay, *radius, f"{worst('base'):.3f}",
                      f"{worst('laser_mm'):.2f}", f"{worst('laser_deg'):.3f}",
-                     f"{alarms / hours:.1f}" if hours > 0 else "-"])
+                     f"{alarms / hours:.1f}" if hours > 0 else "-",
+                     z_cell([r["z_lag"] for r in mine if r["z_lag"] is not None]),
+                     z_cell([r["z_after"] for r in mine]), covered])
     print(f"online calibrator (window_distance 100 m: radii memory fading over 100 m, change "
           f"points); worst over {args.seeds} seeds per scenario")
     print(table(rows, ["scenario", "runs", "detection delay s (median / worst)",
                        "radius error from +30 s %", "from +60 s %", "wheel base error %",
-                       "laser error mm", "laser yaw error deg", "false alarms / h"]))
+                       "laser error mm", "laser yaw error deg", "false alarms / h",
+                       "radius |err|/σ first 30 s after (RMS / worst)",
+                       "from +30 s (RMS / worst)",
+                       "first within 2σ s after (median / worst)"]))
 
 
 if __name__ == "__main__":

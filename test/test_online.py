@@ -14,8 +14,9 @@ from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 from sclam_ros.io.recording import iter_keyframes
 from sclam_ros.core.marginal import NOT_RADII, RADII, Gaussian
-from sclam_ros.online.change import change_point, fade_radii
-from sclam_ros.online.window import POSE_WINDOW_DISTANCE, OnlineCalibrator
+from sclam_ros.online.change import (change_point, change_weight, fade_radii,
+                                     radii_covariance_with_change)
+from sclam_ros.online.window import CHANGE_STATISTIC, POSE_WINDOW_DISTANCE, OnlineCalibrator
 
 DURATION = 200.0
 CHANGE_AT = 100.0  # s after the start
@@ -166,6 +167,36 @@ def test_change_point_finds_a_step_where_it_is():
     assert found.boundary == 7 and found.statistic > 30
 
 
+def test_published_radii_sigma_weighs_in_a_change_being_detected():
+    """Before a change is acted on, the published radii are those of the model without it.
+    Their σ must then cover where the radii went, as far as the test believes in the change:
+    a 0.5 % step in the last 5 of 12 chunks leaves the no-change radii over 3σ from the new
+    ones; with the change model weighed in they are within 2σ, and the change model's
+    radii after the step are within 3σ of the truth."""
+    rng = np.random.default_rng(8)
+    scale = np.array([0.03, 0.03, 0.14, 1.0, 1.0, 0.1])
+    step = np.array([0.125, 0.125]) * 0.995
+    units, metres = _chunks(rng, lambda i: step if i >= 7 else np.array([0.125, 0.125]))
+    found = change_point(units, metres, 1e9, Gaussian(), scale)  # no fading
+    total = sum(units[1:], units[0])
+    none = total.mean()[RADII]
+    none_cov = np.linalg.inv(total.information)[np.ix_(RADII, RADII)]
+    np.testing.assert_allclose(found.none_covariance, none_cov, rtol=1e-6)
+    after_sigma = np.sqrt(np.diag(found.after_covariance))
+    assert np.all(np.abs(none + found.shift - step) < 3 * after_sigma)
+    weight = change_weight(found.statistic, CHANGE_STATISTIC)
+    assert weight > 0.99
+    published = radii_covariance_with_change(none_cov, found, weight)
+    assert np.all(np.abs(none - step) > 3 * np.sqrt(np.diag(none_cov)))
+    assert np.all(np.abs(none - step) < 2 * np.sqrt(np.diag(published)))
+
+
+def test_change_weight_is_even_at_the_threshold_and_small_well_below_it():
+    assert change_weight(CHANGE_STATISTIC, CHANGE_STATISTIC) == pytest.approx(0.5)
+    assert change_weight(0.0, CHANGE_STATISTIC) < 0.05
+    assert change_weight(2 * CHANGE_STATISTIC, CHANGE_STATISTIC) > 0.95
+
+
 def test_change_point_statistic_without_a_change_is_small():
     """Without a change the largest ratio over 11 boundaries stays below the detection
     threshold in most realisations: a χ² (2 dof) per boundary, correlated between them."""
@@ -183,7 +214,8 @@ def test_published_sigma_of_the_radii_is_about_the_batch_one(tmp_path):
     batch's variance factors: odometry ~0.4, scan matches ~0.1); the published σ is scaled
     by the window's a-posteriori variance factor. On a clean 150 s recording, which the
     window holds whole, the radii's σ then comes out near the batch calibration's (honest:
-    bench/honest_sigma.py); with the stated model it was 2.1-2.5 times it."""
+    bench/honest_sigma.py), a little above it where the change test weighs in a change
+    (change.radii_covariance_with_change); with the stated model it is 2.1-2.5 times it."""
     from sclam_ros.cli.calibrate import track
     from sclam_ros.core.estimator import calibrate_keyframes
 
@@ -196,4 +228,4 @@ def test_published_sigma_of_the_radii_is_about_the_batch_one(tmp_path):
     n = len(CALIBRATION_KEYS)
     for i, key in enumerate(CALIBRATION_KEYS[:2]):
         ratio = rows[-1][1 + n + i] / batch.sigma[key]
-        assert 0.6 < ratio < 1.6, (key, ratio)
+        assert 0.6 < ratio < 1.8, (key, ratio)

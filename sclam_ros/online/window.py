@@ -44,11 +44,12 @@ from sclam_ros.core import graph as graph_mod, kinematics, se2
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.frontend.decimation import ONLINE_MATCH_PERIOD
 from sclam_ros.core.inputs import Rejections
-from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian, gaussian_of_prior
+from sclam_ros.core.marginal import RADII, CalibrationPriorFactor, Gaussian, gaussian_of_prior
 from sclam_ros.core.observability import Observability, settle_poses
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import factorize_information, levenberg_marquardt, marginal_covariance
-from sclam_ros.online.change import change_point, faded_sum
+from sclam_ros.online.change import (ChangePoint, change_point, change_weight, faded_sum,
+                                     radii_covariance_with_change)
 
 # Bound on the merged keyframes in the window (0.5 s each by default: 200 s). Reached only
 # when the robot crawls or stands still; then the oldest keyframes leave by count.
@@ -430,6 +431,14 @@ class OnlineCalibrator:
         self.solves += 1
         self.unconverged_in_a_row = 0 if outcome.converged else self.unconverged_in_a_row + 1
         cov = observability.reported_covariance(outcome.variance_factor * outcome.covariance)
+        found = self._test_for_radius_change(job, estimate, outcome.covariance,
+                                             observability.as_dict())
+        if found is not None:
+            # The published radii may be those of before a change being detected: their σ
+            # weighs in the change model as far as the test believes in it.
+            cov[np.ix_(RADII, RADII)] = radii_covariance_with_change(
+                cov[np.ix_(RADII, RADII)], found,
+                change_weight(found.statistic, CHANGE_STATISTIC), outcome.variance_factor)
         self.estimate = Estimate(
             stamp=job.stamp,
             values=graph_mod.as_dict(reported),
@@ -441,14 +450,15 @@ class OnlineCalibrator:
             residual_rms=outcome.residual_rms,
             observable=observability.as_dict(),
         )
-        self._test_for_radius_change(job, estimate, outcome.covariance, observability.as_dict())
         return self.estimate
 
-    def _test_for_radius_change(self, job, mean, cov, observable) -> None:
+    def _test_for_radius_change(self, job, mean, cov, observable) -> Optional[ChangePoint]:
+        """The change test on this solve (None where it cannot be made); a change confirmed
+        CHANGE_CONFIRMATIONS times in a row is acted on (forget_radii)."""
         # A parameter held at nominal carries a lock's information, not the data's.
         if not job.change_testable or not all(observable.values()):
             self.change_statistic = float("nan")
-            return
+            return None
         # The pose window's own information: the solve's posterior less its priors.
         information = np.linalg.inv(cov)
         information = 0.5 * (information + information.T)
@@ -468,6 +478,7 @@ class OnlineCalibrator:
             # is the chunk's number (or the pose window's start as it was then).
             numbers = [*job.history_numbers, job.next_chunk_number]
             self.forget_radii(numbers[found.boundary])
+        return found
 
 
 @dataclass
