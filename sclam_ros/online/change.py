@@ -162,9 +162,11 @@ def radii_covariance_with_change(radii_cov, found: ChangePoint, weight: float,
     Without it, the estimate published while a load change is being detected is the old
     radii with the old σ: measured 10σ off (RMS) in the 30 s after a 1 % step
     (bench/load_change.py)."""
-    if found.shift is None or weight <= 0.0:
+    if found.shift is None or not weight > 0.0:
         return radii_cov
     extra = weight * (variance_factor * (found.after_covariance - found.none_covariance)
                       + np.outer(found.shift, found.shift))
+    if not np.all(np.isfinite(extra)):  # a degenerate test says nothing: the model's σ stands
+        return radii_cov
     eigval, eigvec = np.linalg.eigh(0.5 * (extra + extra.T))
     return radii_cov + (eigvec * np.clip(eigval, 0.0, None)) @ eigvec.T
