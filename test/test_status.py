@@ -82,3 +82,22 @@ def test_wheel_parameters_rows(tracked):
     np.testing.assert_array_equal(values, [calibrator.estimate.values[k] for k in ODOMETRY_KEYS])
     np.testing.assert_array_equal(sigmas, [calibrator.estimate.sigma[k] for k in ODOMETRY_KEYS])
     np.testing.assert_array_equal(observable, [1.0, 1.0, 1.0])
+
+
+def test_a_suspected_radius_change_is_a_warning(tracked):
+    """While the change test leans toward a change it has not declared yet, the published
+    radii are the old ones with a widened σ: the status says so."""
+    import dataclasses
+
+    from sclam_ros.online.change import change_weight
+    from sclam_ros.online.window import CHANGE_STATISTIC
+
+    params, calibrator, _ = tracked
+    quiet = calibrator.status()
+    assert quiet.change_weight < 0.5 or not math.isfinite(quiet.change_weight)
+    suspected = dataclasses.replace(quiet, change_statistic=CHANGE_STATISTIC + 4.0,
+                                    change_weight=change_weight(CHANGE_STATISTIC + 4.0,
+                                                                CHANGE_STATISTIC))
+    level, message, values = diagnostic_status(suspected, params, RECEIVED, Rejections())
+    assert level == WARN and "wheel radii may have changed" in message
+    assert float(values["radius_change_weight"]) > 0.85

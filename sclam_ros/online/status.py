@@ -15,6 +15,9 @@ from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS
 WHEEL_PARAMETER_COLUMNS = ODOMETRY_KEYS
 WHEEL_PARAMETER_ROWS = ("value", "sigma", "observable")
 UNCONVERGED_WARNING = 3  # window solves in a row that hit their iteration cap
+# The change model's weight in the radii σ (window.CalibratorStatus.change_weight) beyond
+# which the status warns: above even odds, the test is one or two solves from declaring it.
+CHANGE_SUSPECTED = 0.5
 OK, WARN = "OK", "WARN"
 
 
@@ -49,6 +52,7 @@ def diagnostic_status(status, params, received, rejections):
     }
     if math.isfinite(cal.change_statistic):
         values["radius_change_chi2"] = f"{cal.change_statistic:.3g}"
+        values["radius_change_weight"] = f"{cal.change_weight:.2f}"
     level, message = WARN, "no estimate yet: drive the robot"
     if estimate is not None:
         values["last_solve_converged"] = str(bool(estimate.converged)).lower()
@@ -63,6 +67,11 @@ def diagnostic_status(status, params, received, rejections):
         missing = [k for k in CALIBRATION_KEYS if not cal.observable[k]]
         if missing:
             message = "not observed by the data yet, kept at nominal: " + ", ".join(missing)
+        elif cal.change_weight > CHANGE_SUSPECTED:
+            # The radii published are those before a change the test is about to declare;
+            # their σ is widened to cover it (change.radii_covariance_with_change).
+            message = ("the wheel radii may have changed (a load put on or taken off?): their "
+                       "σ is widened until the change test decides")
         elif cal.unconverged_in_a_row >= UNCONVERGED_WARNING:
             # One capped solve is normal (the next, warm-started, carries on); a run
             # of them means the window's optimum keeps moving away.
