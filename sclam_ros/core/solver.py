@@ -514,7 +514,8 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
             # other's residuals, and an unclamped step overshoots.
             problem.scales[name] = float(np.clip(
                 problem.scales.get(name, 1.0) * np.clip(ratio, 0.2, 5.0), 1e-4, 1e4))
-        first_round = first_round or dict(problem.scales)
+        if first_round is None:
+            first_round = dict(problem.scales)
         if all(abs(ratio - 1.0) <= tolerance for ratio in ratios.values()):
             break
         problem.values = result.values

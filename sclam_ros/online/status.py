@@ -11,12 +11,14 @@ from __future__ import annotations
 import math
 
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS
+from sclam_ros.online.change import change_weight
+from sclam_ros.online.window import CHANGE_STATISTIC
 
 WHEEL_PARAMETER_COLUMNS = ODOMETRY_KEYS
 WHEEL_PARAMETER_ROWS = ("value", "sigma", "observable")
 UNCONVERGED_WARNING = 3  # window solves in a row that hit their iteration cap
-# The change model's weight in the radii σ (window.CalibratorStatus.change_weight) beyond
-# which the status warns: above even odds, the test is one or two solves from declaring it.
+# The change model's weight in the radii σ (change.change_weight) beyond which the status
+# warns: above even odds, the test is one or two solves from declaring it.
 CHANGE_SUSPECTED = 0.5
 OK, WARN = "OK", "WARN"
 
@@ -50,9 +52,11 @@ def diagnostic_status(status, params, received, rejections):
         "solves_unconverged_in_a_row": cal.unconverged_in_a_row,
         "rejected_total": rejections.total(),
     }
+    weight = math.nan  # the change model's weight in the published radii σ
     if math.isfinite(cal.change_statistic):
+        weight = change_weight(cal.change_statistic, CHANGE_STATISTIC)
         values["radius_change_chi2"] = f"{cal.change_statistic:.3g}"
-        values["radius_change_weight"] = f"{cal.change_weight:.2f}"
+        values["radius_change_weight"] = f"{weight:.2f}"
     level, message = WARN, "no estimate yet: drive the robot"
     if estimate is not None:
         values["last_solve_converged"] = str(bool(estimate.converged)).lower()
@@ -67,7 +71,7 @@ def diagnostic_status(status, params, received, rejections):
         missing = [k for k in CALIBRATION_KEYS if not cal.observable[k]]
         if missing:
             message = "not observed by the data yet, kept at nominal: " + ", ".join(missing)
-        elif cal.change_weight > CHANGE_SUSPECTED:
+        elif weight > CHANGE_SUSPECTED:
             # The radii published are those before a change the test is about to declare;
             # their σ is widened to cover it (change.radii_covariance_with_change).
             message = ("the wheel radii may have changed (a load put on or taken off?): their "

@@ -127,8 +127,6 @@ class CalibratorStatus:
     window_distance: float  # m, the configured radii memory (change.py)
     radius_changes: int
     change_statistic: float  # of the last solve (nan before the first test)
-    # the change model's weight in the published radii σ (change.change_weight; nan: no test)
-    change_weight: float
     solves: int
     skipped_scans: int
     unconverged_in_a_row: int
@@ -260,8 +258,6 @@ class OnlineCalibrator:
             window_length=self.window_length(), pose_window_length=self.pose_window_length(),
             window_distance=float(self.params.window_distance),
             radius_changes=self.radius_changes, change_statistic=self.change_statistic,
-            change_weight=(change_weight(self.change_statistic, CHANGE_STATISTIC)
-                           if np.isfinite(self.change_statistic) else float("nan")),
             solves=self.solves, skipped_scans=self.frontend.skipped_scans,
             unconverged_in_a_row=self.unconverged_in_a_row,
         )
