@@ -77,3 +77,72 @@ def test_composed_arcs_match_fine_integration_and_jacobian():
     assert not np.allclose(motion, kinematics.forward(parts.sum(0), K), atol=1e-3)
     numeric = central_difference(lambda k: kinematics.forward_composed(parts, k)[0], K)
     assert np.allclose(jac, numeric, atol=1e-7)
+
+
+def test_jacobian_u_composed_matches_central_differences():
+    parts = np.array([[1.0, 1.4], [1.2, 0.6], [-0.8, 0.9], [0.0, 0.0]])  # padded
+    jac = kinematics.jacobian_u_composed(parts, K)
+    for p in range(len(parts)):
+        def moved(u, p=p):
+            shifted = parts.copy()
+            shifted[p] = u
+            return kinematics.forward_composed(shifted, K)[0]
+        assert np.allclose(jac[p], central_difference(moved, parts[p]), atol=1e-7)
+
+
+def _spin_with_slip(rng, draws, wheel_noise, n_parts=12):
+    """A 0.6 rad turn on the spot in n_parts steps; each wheel slips by a random walk
+    (variance wheel_noise²·|angle| per step). Returns the measured parts and the true motion
+    of each draw (the wheels' true increments are the measured ones minus the slip)."""
+    turn = 0.6
+    wheel_angle = turn * K[2] / 2 / np.array([K[0], K[1]])  # rad per wheel for the whole turn
+    measured = np.tile(np.array([-wheel_angle[0], wheel_angle[1]]) / n_parts, (n_parts, 1))
+    slip = rng.standard_normal((draws, n_parts, 2)) * wheel_noise * np.sqrt(np.abs(measured))
+    true_motion = kinematics.forward_composed(measured - slip, K)[0]
+    return measured, true_motion
+
+
+def test_motion_covariance_of_parts_is_that_of_the_slip_along_the_turn():
+    """Physics: slip during a turn on the spot moves the robot along the arc's tangent as it
+    turns. The covariance from the parts matches the spread of 4000 such turns in every
+    direction, the single arc's does not: it has (almost) no variance across the chord."""
+    rng = np.random.default_rng(5)
+    wheel_noise = 0.02
+    measured, true_motion = _spin_with_slip(rng, 4000, wheel_noise)
+    model = kinematics.forward_composed(measured, K)[0]
+    errors = true_motion - model
+    errors[:, 2] = se2.wrap_angle(errors[:, 2])
+    empirical = np.cov(errors.T)
+
+    def whitened_variances(cov):
+        root = np.linalg.cholesky(np.linalg.inv(cov))
+        return np.linalg.eigvalsh(root.T @ empirical @ root)
+
+    by_parts = kinematics.motion_covariance(measured.sum(0), K, wheel_noise, floor=1e-14,
+                                            parts=measured)
+    single_arc = kinematics.motion_covariance(measured.sum(0), K, wheel_noise, floor=1e-14)
+    assert np.all(np.abs(whitened_variances(by_parts) - 1.0) < 0.1)
+    assert whitened_variances(single_arc).max() > 10.0
+
+
+def test_odometry_residual_is_whitened_by_the_motion_covariance():
+    """The odometry factor compares motions in the edge's start frame, where the motion
+    covariance is stated: at the true poses its whitened residuals of slipping turns on the
+    spot have unit variance in every direction."""
+    from sclam_ros.core import factors
+    from sclam_ros.core.solver import Values
+
+    rng = np.random.default_rng(6)
+    wheel_noise = 0.02
+    measured, true_motion = _spin_with_slip(rng, 2000, wheel_noise)
+    start = np.array([1.0, -2.0, 2.5])
+    poses = np.concatenate([np.tile(start, (len(true_motion), 1)), se2.compose(start, true_motion)])
+    n = len(true_motion)
+    cov = kinematics.motion_covariance(measured.sum(0), K, wheel_noise, floor=1e-14, parts=measured)
+    f = factors.OdometryFactor(np.arange(n), np.arange(n) + n, np.tile(measured.sum(0), (n, 1)),
+                               np.tile(np.linalg.inv(cov), (n, 1, 1)),
+                               parts=np.tile(measured, (n, 1, 1)))
+    values = Values({"poses": poses, "odometry": [K]}, angular={"poses": [False, False, True]})
+    lin = f.linearize(values)
+    whitened = np.einsum("nij,nj->ni", lin.sqrt_information, lin.residual)
+    assert np.all(np.abs(np.linalg.eigvalsh(np.cov(whitened.T)) - 1.0) < 0.12)

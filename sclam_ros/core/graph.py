@@ -149,7 +149,8 @@ def odometry_covariance(inputs: GraphInputs, params, k) -> np.ndarray:
     interpolation variance of the increments (GraphInputs.odo_variance)."""
     return kinematics.motion_covariance(inputs.odo_dphi, k, params.wheel_noise,
                                         encoder_variance_floor(params), params.lateral_noise,
-                                        inputs.odo_variance, inputs.odo_path_variance)
+                                        inputs.odo_variance, inputs.odo_path_variance,
+                                        parts=inputs.odo_parts)
 
 
 def _node(kf, index):

@@ -515,7 +515,7 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
             problem.scales[name] = float(np.clip(
                 problem.scales.get(name, 1.0) * np.clip(ratio, 0.2, 5.0), 1e-4, 1e4))
         if first_round is None:
-            first_round = dict(problem.scales)
+            first_round = {name: problem.scales[name] for name in ratios}
         if all(abs(ratio - 1.0) <= tolerance for ratio in ratios.values()):
             break
         problem.values = result.values
@@ -526,11 +526,14 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
         # scale fell round after round (0.2, 0.08, 0.04, 0.03, 0.014, 0.006 on a simulated
         # 10-minute drive, seed 3) while their true errors measure 0.11: the poses follow
         # the matches ever closer and the residuals left to them shrink with their scale.
-        # Such a group keeps its one-step estimate.
-        unsettled = [name for name, ratio in _variance_ratios(problem, result.values).items()
-                     if not UNSETTLED_RATIO[0] <= ratio <= UNSETTLED_RATIO[1]]
+        # Such a group keeps its one-step estimate. So does one that ran so far that it
+        # pins the poses and has lost the redundancy to measure its own noise (the same
+        # drive with the wheel noise propagated part by part: laser scale 0.0056, no ratio).
+        final = _variance_ratios(problem, result.values)
+        unsettled = [name for name in first_round
+                     if not UNSETTLED_RATIO[0] <= final.get(name, np.nan) <= UNSETTLED_RATIO[1]]
         if unsettled:
-            problem.scales.update({name: first_round.get(name, 1.0) for name in unsettled})
+            problem.scales.update({name: first_round[name] for name in unsettled})
             problem.values = result.values
             result = levenberg_marquardt(problem, progress=progress, **lm_options)
     problem.values = result.values

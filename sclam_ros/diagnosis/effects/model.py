@@ -85,15 +85,14 @@ class EffectOdometryFactor(factors.OdometryFactor):
         motion, d_m_k, d_m_p = self.predicted_motion_with_jacobians(values)
         pose_delta, d_delta_j, d_delta_i = se2.between_with_jacobians(
             poses[self.pose_j], poses[self.pose_i])
-        residual, d_res_delta, d_res_motion = se2.between_with_jacobians(pose_delta, motion)
+        residual = factors.motion_difference(pose_delta, motion)
         zeros = np.zeros(len(self), int)
         blocks = [
-            factors.JacobianBlock("poses", self.pose_i, d_res_delta @ d_delta_i),
-            factors.JacobianBlock("poses", self.pose_j, d_res_delta @ d_delta_j),
-            factors.JacobianBlock("odometry", zeros, d_res_motion @ d_m_k),
+            factors.JacobianBlock("poses", self.pose_i, d_delta_i),
+            factors.JacobianBlock("poses", self.pose_j, d_delta_j),
+            factors.JacobianBlock("odometry", zeros, -d_m_k),
         ]
-        blocks += [factors.JacobianBlock(name, zeros, d_res_motion @ jac)
-                   for name, jac in d_m_p.items()]
+        blocks += [factors.JacobianBlock(name, zeros, -jac) for name, jac in d_m_p.items()]
         return factors.Linearization(residual, self._sqrt_info, blocks)
 
 
