@@ -5,7 +5,7 @@ fixed point sits 0.1 % long moves the wheel radii by 0.1 % although each match i
 its σ. That is too small to see on one recording (bench/sensor_matrix.py needs tens of
 seeds to resolve it); here it is measured where nothing else can be blamed:
 
-  - pairs of laser poses in the simulator's office, the second `--step` m ahead of the
+  - pairs of laser poses in the simulator's office (or outdoor scene), the second `--step` m ahead of the
     first along the laser's x axis (the robot's usual motion between matched scans) and
     turned by a random few degrees; both scans ray cast, then `--draws` noise draws per pair;
   - the refinement (point_to_line.refine_with_covariance) started at the true motion, with
@@ -26,6 +26,7 @@ and the URG-04LX-like laser (started long, without the returns near its range li
 a longer range).
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
+     [--rows N ...]
 """
 from __future__ import annotations
 
@@ -61,6 +62,13 @@ ROWS = [
     ("  started 1 % long", URG, (1.0, 1.0), {"start_scale": 1.01}),
     ("  returns within 3σ of the range limit left out", URG, (1.0, 1.0), {"clear_of_limit": 3.0}),
     ("  with a 20 m range", dict(URG, range_max=20.0), (1.0, 1.0), {}),
+    # The outdoor scene (trunks and poles as octagons, parked cars, one façade) with the
+    # default laser: where the sensor matrix's outdoor matches come out long.
+    ("office, default laser: 1 cm, 20 m, 360 b", {}, (1.0, 1.0), {}),
+    ("outdoor scene, default laser: 1 cm, 20 m, 360 b", {}, (1.0, 1.0), {"scene": "outdoor"}),
+    ("  without noise (the scene's geometry alone)", {}, (0.0, 0.0), {"scene": "outdoor"}),
+    ("  started 1 % long", {}, (1.0, 1.0), {"scene": "outdoor", "start_scale": 1.01}),
+    ("  720 beams", dict(beams=720), (1.0, 1.0), {"scene": "outdoor"}),
 ]
 
 
@@ -106,11 +114,12 @@ def _measure_row(job):
     from sclam_ros.sim.motion import TrueKinematics
     from sclam_ros.sim.sensors import LaserModel
     from sclam_ros.sim.trajectory import simulate_trajectory
-    from sclam_ros.sim.world import office_world
+    from sclam_ros.sim.world import scene_world
 
     start_scale = options.get("start_scale", 1.0)  # the refinement's start, × the true motion
     clear_of_limit = options.get("clear_of_limit", 0.0)  # σ: returns this near range_max left out
-    world = office_world()
+    scene = options.get("scene", "office")
+    world = scene_world(scene)
     route = simulate_trajectory(world, TrueKinematics(0.1, 0.1, 0.5), 200.0, seed, robot_radius=0.3)
     rng = np.random.default_rng(seed)
     model = LaserModel(**laser)
@@ -171,13 +180,15 @@ def main():
     ap.add_argument("--step", type=float, default=0.15, help="m between the two laser poses")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--rows", type=int, nargs="*", help="row numbers (from 0) to run; default all")
     args = ap.parse_args()
+    rows = [ROWS[i] for i in args.rows] if args.rows else ROWS
     jobs = [(label, laser, which, constants, args.pairs, args.draws, args.step, args.seed)
-            for label, laser, which, constants in ROWS]
+            for label, laser, which, constants in rows]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_row, jobs))
-    print(f"{args.pairs} pose pairs × {args.draws} noise draws, {args.step:g} m apart, office; "
-          f"refinement started at the true motion")
+    print(f"{args.pairs} pose pairs × {args.draws} noise draws, {args.step:g} m apart, office unless "
+          f"said; refinement started at the true motion")
     print(table([[label, f"{mean:+.3f} ± {error:.3f}", f"{weighted:+.3f} ± {spread:.3f}",
                   f"{low:+.2f} … {high:+.2f}", used, f"{1e3 * noise:.0f}"]
                  for label, mean, error, weighted, spread, low, high, used, noise in results],
