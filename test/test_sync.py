@@ -64,12 +64,14 @@ def test_interpolation_exact_for_constant_speed_wheels():
 
 
 def test_interpolation_variance_is_the_error_of_a_constantly_accelerating_wheel():
-    """Wheels accelerating uniformly (φ = a t²/2), sampled at 2 Hz: the line through two
-    samples misses the wheel angle by a/2 (t − t_i)(t_i+1 − t). The reported variance is
-    that error, times INTERPOLATION_SIGMA_SCALE, squared; 0 at a sample and at constant speed."""
+    """Wheels accelerating uniformly (φ = a t²/2), sampled at 2 Hz and interpolated on the
+    line (curved_interval above the period): the line through two samples misses the wheel
+    angle by a/2 (t − t_i)(t_i+1 − t). The reported variance is that error, times
+    INTERPOLATION_SIGMA_SCALE, squared; 0 at a sample and at constant speed."""
     from sclam_ros.frontend.sync import INTERPOLATION_SIGMA_SCALE
 
-    stream = EncoderStream(ticks_per_revolution=0.0, config=SyncConfig(max_history=100.0))
+    stream = EncoderStream(ticks_per_revolution=0.0,
+                           config=SyncConfig(max_history=100.0, curved_interval=1.0))
     accel = np.array([2.0, -3.0])  # rad/s²
     stamps = 0.5 * np.arange(12)
     for t in stamps:
@@ -85,6 +87,35 @@ def test_interpolation_variance_is_the_error_of_a_constantly_accelerating_wheel(
     for t in stamps:
         steady.add(t, 3.0 * t, -t)
     np.testing.assert_allclose(steady.wheel_angles_at(3.3).variance, 0.0, atol=1e-20)
+
+
+def test_slow_samples_are_interpolated_on_the_parabola_through_three_samples():
+    """Wheels accelerating uniformly, sampled at 1 Hz (beyond curved_interval): from the
+    second interval of a segment on, the parabola through the sample before and the two
+    around the stamp is exact, where the line misses by up to a/8 · T² (0.25 rad for
+    a = 2 rad/s²). The variance stays the line's error (conservative: the parabola's own
+    error is that of a change of acceleration). The first interval, with no sample before
+    it, and samples closer than curved_interval keep the line."""
+    accel = np.array([2.0, -3.0])  # rad/s²
+
+    def stream_at(period):
+        stream = EncoderStream(ticks_per_revolution=0.0, config=SyncConfig(max_history=100.0))
+        for t in period * np.arange(12):
+            stream.add(t, *(0.5 * accel * t**2))
+        return stream
+
+    slow = stream_at(1.0)
+    for t in (1.5, 2.25, 6.7, 10.5):
+        w = slow.wheel_angles_at(t)
+        np.testing.assert_allclose(w.angles, 0.5 * accel * t**2, atol=1e-12)
+        assert np.all(w.variance > 0)
+    t = 0.5  # first interval: the line
+    np.testing.assert_allclose(slow.wheel_angles_at(t).angles - 0.5 * accel * t**2,
+                               0.5 * accel * t * (1.0 - t), rtol=1e-9)
+    fast = stream_at(0.2)  # 5 Hz: the line
+    t = 1.1
+    np.testing.assert_allclose(fast.wheel_angles_at(t).angles - 0.5 * accel * t**2,
+                               0.5 * accel * (t - 1.0) * (1.2 - t), rtol=1e-9)
 
 
 def test_prediction_beyond_the_newest_sample_is_exact_at_constant_speed_and_bounded():
