@@ -528,7 +528,8 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
         # the matches ever closer and the residuals left to them shrink with their scale.
         # Such a group keeps its one-step estimate. So does one that ran so far that it
         # pins the poses and has lost the redundancy to measure its own noise (the same
-        # drive with the wheel noise propagated part by part: laser scale 0.0056, no ratio).
+        # drive with the odometry edges of factors.motion_difference: laser scale 0.0056,
+        # no ratio left).
         final = _variance_ratios(problem, result.values)
         unsettled = [name for name in first_round
                      if not UNSETTLED_RATIO[0] <= final.get(name, np.nan) <= UNSETTLED_RATIO[1]]
