@@ -62,3 +62,15 @@ def table(rows, header):
     sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
     body = ["| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths)) + " |" for r in rows]
     return "\n".join([line, sep, *body])
+
+
+def seeds_arguments(doc, seeds, duration):
+    """An argument parser with a bench's usual --seeds, --duration (s) and --jobs (one
+    process per core), its description the bench's docstring."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=seeds)
+    ap.add_argument("--duration", type=float, default=duration)
+    ap.add_argument("--jobs", type=int, default=2)
+    return ap

@@ -17,7 +17,6 @@ Run: .venv/bin/python bench/reference_bias.py [--seeds 4] [--duration 60] [--job
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import POWERBOT_LASER_MOUNT, powerbot_route, table  # noqa: E402
+from common import POWERBOT_LASER_MOUNT, powerbot_route, seeds_arguments, table  # noqa: E402
 from sensor_matrix import LOW_COST, ROWS, URG  # noqa: E402
 
 LASERS = {"URG-04LX-like (3 cm, 5.6 m, 240°, 683 b)": URG,
@@ -94,11 +93,7 @@ def _offsets(job):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--seeds", type=int, default=4)
-    ap.add_argument("--duration", type=float, default=60.0)
-    ap.add_argument("--jobs", type=int, default=2)
-    args = ap.parse_args()
+    args = seeds_arguments(__doc__, seeds=4, duration=60.0).parse_args()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
         for label, laser in LASERS.items():
