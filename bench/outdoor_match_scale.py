@@ -13,7 +13,7 @@ with the truth three ways, each match weighted by its information as the graph w
 
 Scene variants, one factor at a time (the simulator's outdoor world with its builders
 replaced for the run): as simulated (tree trunks as octagons), trunks as 32-gons (rounder),
-without the trunks, without the parked cars (the poles, 0.15 m boxes, and the façade stay). Also: the refined scale by
+trunks as square boxes of the same width (flat faces and corners), without the trunks, without the parked cars (the poles, 0.15 m boxes, and the façade stay). Also: the refined scale by
 the length of the true motion (the step), all seeds pooled.
 
 The front end is observed, not changed: point_to_line._confirmed is wrapped to record each
@@ -33,8 +33,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import seeds_arguments, table  # noqa: E402
 
-VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "without the trunks",
-            "without the parked cars")
+VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "trunks as square boxes",
+            "without the trunks", "without the parked cars")
 STEP_BINS = ((0.0, 0.03), (0.03, 0.08), (0.08, 0.15), (0.15, 1.0))
 
 
@@ -49,8 +49,10 @@ def _scene_variant(variant):
             return world._polyline(*[(cx + radius * np.cos(a), cy + radius * np.sin(a)) for a in angles])
         world._octagon = round_object
     elif variant == VARIANTS[2]:
-        world._octagon = lambda cx, cy, radius: []
+        world._octagon = lambda cx, cy, radius: box(cx, cy, 2.0 * radius, 2.0 * radius)
     elif variant == VARIANTS[3]:
+        world._octagon = lambda cx, cy, radius: []
+    elif variant == VARIANTS[4]:
         world._box = lambda cx, cy, w, h: [] if w > 1.0 else box(cx, cy, w, h)
     return lambda: (setattr(world, "_octagon", octagon), setattr(world, "_box", box))
 
