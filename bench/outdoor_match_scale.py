@@ -43,7 +43,8 @@ STEP_BINS = ((0.0, 0.03), (0.03, 0.08), (0.08, 0.15), (0.15, 1.0))
 
 
 def _scene_variant(variant):
-    """Replace the outdoor world's object builders for this process's run."""
+    """Replace the outdoor world's object builders for this process's run (and the processes
+    it forks); returns a function that puts them back."""
     from sclam_ros.sim import world
 
     octagon, box = world._octagon, world._box

@@ -25,6 +25,8 @@ Run: .venv/bin/python bench/sensor_matrix.py [--seeds 10] [--duration 120] [--jo
      [--factors urg|low-cost: that row with one factor at a time set back to the default's]
      [--true-nominal: the true calibration as the nominal one, so the odometry guess the
       scan matcher starts from is right; a bias that remains is not the guess's]
+     [--outdoor-variant "without the trunks"|...: the outdoor scene's objects changed as in
+      bench/outdoor_match_scale.py, one factor at a time]
 """
 from __future__ import annotations
 
@@ -42,6 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import table  # noqa: E402
+from outdoor_match_scale import VARIANTS as OUTDOOR_VARIANTS, _scene_variant  # noqa: E402
 
 DEG = math.pi / 180.0
 # name: simulate() keywords. The first row is the laser the noise model was measured on.
@@ -220,7 +223,12 @@ def main():
     ap.add_argument("--true-nominal", action="store_true",
                     help="start from the true calibration (the scan matcher's guess is right)")
     ap.add_argument("--save", type=Path, help="also write every seed's numbers to this JSON file")
+    ap.add_argument("--outdoor-variant", choices=OUTDOOR_VARIANTS,
+                    help="the outdoor scene with its trunks reshaped or removed "
+                         "(bench/outdoor_match_scale.py); the processes inherit it")
     args = ap.parse_args()
+    if args.outdoor_variant:
+        _scene_variant(args.outdoor_variant)
     if args.factors:
         ROWS.clear()
         ROWS.update(FACTOR_ROWS[args.factors])
@@ -236,7 +244,8 @@ def main():
         if r["failed"]:
             print(f"{r['name']} seed {r['seed']}: no calibration: {r['failed']}", file=sys.stderr)
     print(f"PowerBot, {args.seeds} seeds × {args.duration:.0f} s per row; errors against the "
-          f"simulator's truth" + ("; the true calibration as nominal" if args.true_nominal else ""))
+          f"simulator's truth" + ("; the true calibration as nominal" if args.true_nominal else "")
+          + (f"; outdoor scene {args.outdoor_variant}" if args.outdoor_variant else ""))
     print(table([row_cells(n, [r for r in results if r["name"] == n]) for n in names],
                 ["laser / scene", "calibrated", "mean error r_l r_r b %", "its standard error %",
                  "RMS error r_l r_r b %", "mean laser error x y mm / yaw °",
