@@ -42,7 +42,7 @@ VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "trunks as
 STEP_BINS = ((0.0, 0.03), (0.03, 0.08), (0.08, 0.15), (0.15, 1.0))
 
 
-def _scene_variant(variant):
+def scene_variant(variant):
     """Replace the outdoor world's object builders for this process's run (and the processes
     it forks); returns a function that puts them back."""
     from sclam_ros.sim import world
@@ -72,7 +72,7 @@ def run_case(job):
     from sclam_ros.io.recording import read_ground_truth, read_recording
     from sclam_ros.sim import simulate
 
-    restore = _scene_variant(variant)
+    restore = scene_variant(variant)
     calls = []
     confirmed = point_to_line._confirmed
 

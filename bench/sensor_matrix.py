@@ -44,7 +44,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import table  # noqa: E402
-from outdoor_match_scale import VARIANTS as OUTDOOR_VARIANTS, _scene_variant  # noqa: E402
+from outdoor_match_scale import VARIANTS as OUTDOOR_VARIANTS, scene_variant  # noqa: E402
 
 DEG = math.pi / 180.0
 # name: simulate() keywords. The first row is the laser the noise model was measured on.
@@ -228,7 +228,7 @@ def main():
                          "(bench/outdoor_match_scale.py); the processes inherit it")
     args = ap.parse_args()
     if args.outdoor_variant:
-        _scene_variant(args.outdoor_variant)
+        scene_variant(args.outdoor_variant)
     if args.factors:
         ROWS.clear()
         ROWS.update(FACTOR_ROWS[args.factors])

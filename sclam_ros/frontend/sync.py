@@ -26,7 +26,7 @@ biased with the drive (a 1 Hz wheel base came out 0.12 % short without slip nois
 the angles are taken on the parabola through the sample before and the two around the
 stamp (SyncConfig.curved_interval), which is exact for constant acceleration. Each
 interpolated angle carries the variance of the line's interpolation error
-(interpolation_variance), which the odometry edges add to their covariance.
+(EncoderStream._off_line), which the odometry edges add to their covariance.
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ from sclam_ros.core.inputs import EncoderSample, Rejections, Scan
 
 
 PERIOD_SAMPLE = 20  # encoder steps the stream's own period is judged from
-# The interpolation error's 1σ in units of its quadratic estimate (interpolation_variance).
+# The interpolation error's 1σ in units of its quadratic estimate (EncoderStream._off_line).
 # The estimate takes the acceleration from the two intervals up to the next sample, so it
 # lags a change of acceleration: on simulated PowerBot drives at 2 Hz (120 s, seed 1) the
 # true errors' RMS was 1.19× the estimates' RMS (correlation 0.67-0.73 per wheel).
@@ -81,7 +81,7 @@ class SyncConfig:
     # How long (in scan time) a scan waits for the encoder stream to reach its stamp.
     max_scan_latency: float = 1.0
     # Between samples further apart than this, the angles are interpolated on the parabola
-    # through the sample before and the two around the stamp (EncoderStream._bend), not on
+    # through the sample before and the two around the stamp (EncoderStream._curved), not on
     # the straight line. Measured on simulated 1 Hz drives (`python bench/sensor_matrix.py
     # --seeds 20 --duration 120 --rows 7`; ad hoc on the same recordings without slip noise,
     # where only the interpolation errs: wheel base −0.12 ± 0.02 % on the line, −0.04 ±
@@ -282,27 +282,33 @@ class EncoderStream:
     # --- internals -----------------------------------------------------------------------
     def _on_line(self, i: int, t: float, curved: bool = False) -> WheelAngles:
         """Wheel angles at ``t`` on the line through samples i and i + 1 (same segment), or
-        with ``curved`` (between them, never beyond) bent by _bend where they are far apart."""
+        with ``curved`` (between them, never beyond) on the parabola where _curved says so."""
         stamps = self._stamps
         w = (t - stamps[i]) / (stamps[i + 1] - stamps[i])
         angles = np.array([self._left[i] + w * (self._left[i + 1] - self._left[i]),
                            self._right[i] + w * (self._right[i + 1] - self._right[i])])
-        if curved:
-            angles = angles - self._bend(i, t)
-        return WheelAngles(t, angles * self._rad_per_unit, self._segments[i],
-                           self._interpolation_variance(i, t), t - stamps[i], self._path[i])
+        off_line = self._off_line(i, t)
+        if curved and self._curved(i):
+            angles = angles - off_line
+        variance = (INTERPOLATION_SIGMA_SCALE * off_line * self._rad_per_unit) ** 2
+        return WheelAngles(t, angles * self._rad_per_unit, self._segments[i], variance,
+                           t - stamps[i], self._path[i])
 
-    def _bend(self, i: int, t: float) -> np.ndarray:
-        """(2,) raw units: how far below the line through samples i and i + 1 the parabola
-        through samples i − 1, i and i + 1 lies at ``t``: a/2 · (t − t_i)(t_i+1 − t), a from
-        _interval_motion. Zero where the samples are closer than config.curved_interval or
-        sample i starts its segment (no sample before it to bend by)."""
+    def _off_line(self, i: int, t: float) -> np.ndarray:
+        """(2,) raw units: how far below the line through samples i and i + 1 a wheel turning
+        with angular acceleration a (_interval_motion) is at ``t``: a/2 · (t − t_i)(t_i+1 − t).
+        Its magnitude, times INTERPOLATION_SIGMA_SCALE, is the interpolation's 1σ; it is also
+        how far the parabola through samples i − 1, i and i + 1 lies below the line."""
         stamps = self._stamps
-        if (stamps[i + 1] - stamps[i] <= self.config.curved_interval
-                or i == 0 or self._segments[i - 1] != self._segments[i]):
-            return np.zeros(2)
-        acceleration = self._interval_motion(i)[1]
-        return 0.5 * acceleration * (t - stamps[i]) * (stamps[i + 1] - t)
+        return 0.5 * self._interval_motion(i)[1] * (t - stamps[i]) * (stamps[i + 1] - t)
+
+    def _curved(self, i: int) -> bool:
+        """Whether the angles between samples i and i + 1 are taken on the parabola: the
+        samples are further apart than config.curved_interval and sample i has one before it
+        in its segment."""
+        stamps = self._stamps
+        return (stamps[i + 1] - stamps[i] > self.config.curved_interval
+                and i > 0 and self._segments[i - 1] == self._segments[i])
 
     def _interval_motion(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """(mean speed (2,), acceleration (2,)) of the wheels between samples i and i + 1, in
@@ -321,18 +327,6 @@ class EncoderStream:
         else:
             previous, spacing = np.zeros(2), period
         return speed, (speed - previous) / spacing
-
-    def _interpolation_variance(self, i: int, t: float) -> np.ndarray:
-        """(2,) rad²: variance of the angles interpolated at ``t`` between samples i and i + 1.
-
-        A wheel turning with angular acceleration a departs from the line through the two
-        samples by a/2 · (t − t_i)(t_i+1 − t), a from _interval_motion.
-        """
-        stamps = self._stamps
-        acceleration = self._interval_motion(i)[1]
-        sigma = (INTERPOLATION_SIGMA_SCALE * 0.5 * (t - stamps[i]) * (stamps[i + 1] - t)
-                 * np.abs(acceleration) * self._rad_per_unit)
-        return sigma**2
 
     def _path_variance(self, i: int) -> float:
         """rad⁴: variance of where the robot ends up sideways at sample i + 1, against the
