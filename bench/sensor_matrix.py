@@ -64,8 +64,10 @@ ROWS = {
     "default laser, odometry 1 Hz": dict(encoder_rate=1.0),
     "outdoor, default laser": dict(scene="outdoor"),
 }
-# --factors: the URG-04LX-like row with one of its factors set back to the default laser's.
+# --factors: a row with one of its factors changed (the URG-04LX-like and low-cost ones set
+# back to the default laser's, the outdoor one's range noise).
 URG = ROWS["10 Hz, 240°, 683 b, 5.6 m, 3 cm (URG-04LX)"]
+OUTDOOR = ROWS["outdoor, default laser"]
 LOW_COST = ROWS["5 Hz, 360°, 720 b, 12 m, 2 cm + 1 %, 10 % dropouts, mixed pixels (low-cost)"]
 FACTOR_ROWS = {
     "urg": {
@@ -81,6 +83,16 @@ FACTOR_ROWS = {
             LOW_COST, laser=dict(LOW_COST["laser"], dropout=0.0, mixed_pixels=0.0)),
         "  at 10 Hz, 360 b": dict(LOW_COST, scan_rate=10.0, beams=360),
         "  with 20 m range": dict(LOW_COST, laser=dict(LOW_COST["laser"], range_max=20.0)),
+    },
+    # The outdoor row's range noise (the factor its bias follows), its range and the wheels' slip.
+    "outdoor": {
+        "outdoor, default laser (1 cm)": OUTDOOR,
+        "  without range noise": dict(OUTDOOR, range_noise=1e-4),
+        "  with 0.5 cm noise": dict(OUTDOOR, range_noise=0.005),
+        "  with 2 cm noise": dict(OUTDOOR, range_noise=0.02),
+        "  with 60 m range": dict(OUTDOOR, laser=dict(range_max=60.0)),
+        "  without wheel slip": dict(OUTDOOR, slip_noise=0.0),
+        "  without wheel slip or range noise": dict(OUTDOOR, slip_noise=0.0, range_noise=1e-4),
     },
 }
 RADII_AND_BASE = ("wheel_radius_left", "wheel_radius_right", "wheel_base")
