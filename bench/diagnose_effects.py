@@ -112,6 +112,12 @@ def run_case(scenario, seed, duration, workdir):
     if scenario == "speed_radius":
         out["correct"] = out["correct"] and out["cause"] in SPEED_REGRESSORS
     floor = next(e for e in report["effects"] if e["name"] == "floor_noise")
+    # The best rectangle's evidence against its penalties, on every run (clean ones too).
+    evidence = floor["evidence"]
+    if evidence.get("likelihood_ratio") is not None:
+        out["floor_evidence"] = (evidence["likelihood_ratio"], evidence["bic_penalty"],
+                                 evidence.get("heldout_likelihood_ratio"),
+                                 evidence.get("heldout_penalty"))
     if scenario == "carpet" and out["room_visited"] and "region" in floor:
         found_in = _in_region(odom_xy, floor["region"])
         out["overlap"] = float(np.sum(true_in & found_in) / max(np.sum(true_in | found_in), 1))
@@ -162,6 +168,11 @@ def main():
             extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error", "size_z") if k in r)
             extra += "" if r.get("room_visited", True) else " (the route never enters the room)"
             extra += f", named as fitting as well: {r['alternatives']}" if r["alternatives"] else ""
+            if r.get("floor_evidence") and n in ("carpet", "clean"):
+                lr, bic, held, held_penalty = r["floor_evidence"]
+                extra += (f", floor_noise likelihood ratio {lr:.1f} (penalty {bic:.1f}), held out "
+                          f"{held if held is None else round(held, 1)} (penalty "
+                          f"{held_penalty if held_penalty is None else round(held_penalty, 1)})")
             print(f"{n} seed {s}: selected {r['selected'] or 'none'}, cause {r['cause']} "
                   f"({r['cause_fraction'] or 0:.2f}){extra}, not separable "
                   f"{[p['effects'] for p in r['not_separable']]}, {r['seconds']:.0f} s", flush=True)

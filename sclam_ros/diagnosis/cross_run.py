@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.diagnosis.diagnose import Fit, edge_nll, paired_edges
+from sclam_ros.diagnosis.diagnose import Fit, OdometryCovariance, edge_nll, paired_edges
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
 from sclam_ros.core.estimator import calibrate_keyframes
@@ -80,7 +80,7 @@ def predict_error(model: FittedModel, keyframes, params) -> np.ndarray:
     effects = [LIBRARY[n](data) for n in model.effects]
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     # The stated odometry noise at nominal k, exactly as diagnose scores its held-out blocks.
-    odo_cov = graph_mod.odometry_covariance(inputs, params, nominal[:3])
+    odo_cov = OdometryCovariance.of(inputs, params, nominal[:3])
     fit = Fit(problem=None, values=model.values, scales=model.scales, cost=float("nan"))
     return edge_nll(fit, effects, inputs, paired_edges(inputs), odo_cov)
 

@@ -1,4 +1,4 @@
-"""Several noise effects at once: their factors on the odometry covariance multiply.
+"""Several noise effects at once: their factors on the wheels' noise multiply.
 
 Each is fitted with the others' factors held (two rounds of coordinate descent: the
 effects follow different regressors, so the second round changes little).

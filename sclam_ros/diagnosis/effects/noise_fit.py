@@ -1,8 +1,9 @@
-"""Maximum-likelihood factors on the odometry covariance, shared by the noise effects.
+"""Maximum-likelihood factors on the wheels' noise, shared by the noise effects.
 
-A noise effect changes the noise model, not the mean: it multiplies each edge's odometry
-covariance by a factor. It is fitted to the laser-vs-odometry disagreements of a fit,
-whose covariance is factor·(odometry part) + (scan-match part), through a function
+A noise effect changes the noise model, not the mean: it multiplies the wheel-noise part
+of each edge's odometry covariance by a factor (diagnose.OdometryCovariance says why that
+part). It is fitted to the laser-vs-odometry disagreements of a fit, whose covariance is
+factor·(wheels' part) + (scan match and the odometry's other parts), through a function
 nll(factors (m,)) -> per-edge negative log-likelihood (m,) (diagnose.Disagreement.nll).
 """
 from __future__ import annotations
@@ -14,7 +15,7 @@ LOG_RANGE = np.log(100.0)  # factors searched within [1/100, 100]
 
 
 def ml_factor(nll, inside) -> float:
-    """The one factor on the odometry covariance of the `inside` edges minimising their NLL."""
+    """The one factor on the wheels' noise of the `inside` edges minimising their NLL."""
     return float(np.exp(_best_log_factor(_region_nll(nll, inside))))
 
 

@@ -2,7 +2,7 @@
 acceleration (wheels that skid more when fast, when turning hard, when accelerating).
 
 log λ_e = b + a·z_e, z the edge's regressor standardised over the fitted edges, λ_e the
-factor on its odometry covariance, fitted by maximum likelihood to the laser-vs-odometry
+factor on its wheels' noise, fitted by maximum likelihood to the laser-vs-odometry
 disagreements (see noise_fit) and divided by the one factor of all edges, so that the
 effect models how the noise changes with the regressor, not the overall scale. The
 stated noise already grows with the wheel angle turned (a random walk per radian); this
