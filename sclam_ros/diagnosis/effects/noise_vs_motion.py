@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from sclam_ros.diagnosis.effects.base import ModelEffect
-from sclam_ros.diagnosis.effects.noise_fit import ml_factor
+from sclam_ros.diagnosis.effects.noise_fit import LOG_RANGE, ml_factor
 
 MAX_SLOPE = 3.0  # |a|: at most a factor e³ per standard deviation of the regressor
 
@@ -56,7 +56,9 @@ class NoiseVsMotion(ModelEffect):
         overall = np.log(ml_factor(nll, np.ones(len(z), bool)))
 
         def total(p):
-            return float(np.sum(nll(np.exp(p[1] + p[0] * z))))
+            # Within the factors ml_factor searches: a small wheel-noise share lets the
+            # simplex wander to factors whose exp overflows.
+            return float(np.sum(nll(np.exp(np.clip(p[1] + p[0] * z, -LOG_RANGE, LOG_RANGE)))))
 
         best = minimize(total, np.array([0.0, overall]), method="Nelder-Mead",
                         options={"xatol": 1e-4, "fatol": 1e-6})
