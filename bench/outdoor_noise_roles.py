@@ -133,8 +133,6 @@ def _patch(variant, twin):
     def confirmed_with(reference, points, z_icp):
         if variant == VARIANTS[1]:
             points = twin.clean_points
-        if variant == VARIANTS[4]:
-            twin.pairing_points = twin.clean_points[:, :2]
         return confirmed(reference, points, z_icp)
 
     def refine_paired_at_truth(reference, points, z0):
@@ -143,7 +141,8 @@ def _patch(variant, twin):
             return refine(reference, points, z0)
         z_true = twin.true_motion(*twin.match_stamps)
         c, s = math.cos(z_true[2]), math.sin(z_true[2])
-        at_truth = twin.pairing_points @ np.array([[c, s], [-s, c]]) + z_true[:2]
+        # the noise-free twin of `points`: the scan being matched is the one just added
+        at_truth = twin.clean_points[:, :2] @ np.array([[c, s], [-s, c]]) + z_true[:2]
         dist, line = reference.tree.query(at_truth, distance_upper_bound=ptl.MAX_PAIR_DISTANCE)
         ok = np.isfinite(dist)
         if np.count_nonzero(ok) < 20:
