@@ -41,7 +41,9 @@ def test_scan_match_scale_does_not_run_away_with_slow_odometry(tmp_path):
     recording = read_recording(bag, params)
     result = calibrate_keyframes(recording.keyframes, params, recording.rejections)
     true_scale = _true_mean_squared_whitened(result, bag, truth, "laser")
-    assert 0.05 < true_scale < 0.3  # the stated model overstates the matches' noise
+    # The stated model overstates the merged edges' noise: a keyframe edge sums its
+    # matches' covariances, and their errors correlate negatively (−0.4 at lag 1).
+    assert 0.05 < true_scale < 0.8
     assert true_scale / 3 < result.variance_scales["laser"] < 3 * true_scale
     for key in CALIBRATION_KEYS:
         assert abs(result.estimate[key] - truth[key]) < 3 * result.sigma[key], key
