@@ -70,6 +70,10 @@ def format_summary(report) -> str:
         if alternatives and e["selected"]:
             lines.append(f"    {', '.join(alternatives)} fit the data about as well (within one "
                          f"standard error of held-out error); {e['name']} is the simplest of them")
+        ident = e["evidence"]["identifiability"]
+        if not e["selected"] and not ident["determined"] and ident["sigma_ratio"] is not None:
+            lines.append(f"    not determined by this recording: its σ is "
+                         f"{ident['sigma_ratio']:.2f} of its prior's (at most 0.5 to join)")
         stand_in = e["evidence"].get("stand_in_for")
         if stand_in and not e["selected"]:
             lines.append(f"    {stand_in['regressor']} explains more of what it would fit "

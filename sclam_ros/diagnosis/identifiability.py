@@ -3,7 +3,8 @@ model's calibration move more than its uncertainty allows?
 
 An effect joins the model only if it is determined together with the selected ones:
 - its parameters' posterior σ is at most SIGMA_RATIO of their prior σ (the prior that
-  keeps an unexcited effect well-posed; at σ ≈ prior the data say nothing about it), and
+  keeps an unexcited effect well-posed; at σ ≈ prior the data say nothing about it; for
+  a noise effect with a σ, its log factor's against NOISE_LOG_PRIOR_SIGMA), and
 - no correlation between its parameters and a selected effect's exceeds MAX_CORRELATION.
   For mechanical effects: of the joint marginal covariance in the graph. For noise
   effects: of the log factors they put on the edges (a carpet the robot only crosses
@@ -20,6 +21,12 @@ import numpy as np
 from sclam_ros.core.solver import marginal_covariance
 
 SIGMA_RATIO = 0.5
+# A noise effect's factors are searched between 1/8 and 8 (floor_noise.LEVELS); as a prior,
+# its log uniform over that range: σ = ln 8 / √3 ≈ 1.2. (On the Mines exp1 log, scans
+# re-stamped by 160 ms, a rectangle of a few edges was selected with a variance ratio of
+# 46 ± 110, a log σ of 2.4, and moved the held-out error by 0.01 nats per edge; one room's
+# simulated carpet gives a log σ of about 0.2, bench/diagnose_effects.py.)
+NOISE_LOG_PRIOR_SIGMA = float(np.log(8.0) / np.sqrt(3.0))
 MAX_CORRELATION = 0.9
 # The calibration moving by more than this many of the extended model's σ when effects are
 # added is said in the report's warnings.
@@ -28,6 +35,15 @@ MAX_SHIFT_SIGMA = 3.0
 
 def _log_scales(effect, edges):
     return np.log(np.maximum(effect.scale_of(edges.pose_i, edges.pose_j), 1e-300))
+
+
+def _noise_sigma_ratio(effect):
+    """σ of a fitted noise effect's log factor over NOISE_LOG_PRIOR_SIGMA, or None for an
+    effect that states no σ."""
+    sigma = effect.value_sigma()
+    if sigma is None or not effect.value() > 0:
+        return None
+    return float(sigma / effect.value() / NOISE_LOG_PRIOR_SIGMA)
 
 
 def check(candidate, selected, fit, noise, edges) -> dict:
@@ -43,7 +59,9 @@ def check(candidate, selected, fit, noise, edges) -> dict:
             theirs = _log_scales(other, edges)
             if np.std(mine) > 0 and np.std(theirs) > 0:
                 correlations[other.name] = float(abs(np.corrcoef(mine, theirs)[0, 1]))
-        return {"determined": True, "sigma_ratio": None, "correlations": correlations}
+        ratio = _noise_sigma_ratio(candidate)
+        return {"determined": ratio is None or ratio <= SIGMA_RATIO, "sigma_ratio": ratio,
+                "correlations": correlations}
     blocks = [e.name for e in selected if e.kind != "noise" and e.name != candidate.name]
     cov = marginal_covariance(fit.problem, fit.values, [candidate.name] + blocks)
     sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
