@@ -68,9 +68,9 @@ POSE_WINDOW_DISTANCE = 5.0
 # CHANGE_STATISTIC on CHANGE_CONFIRMATIONS solves in a row. At one boundary fixed in advance
 # the ratio would be a χ² with 2 dof; the test takes the largest over the ~45 boundaries of
 # a 100 m history, and the window's noise model overstates the noise (the batch solve's
-# variance factors are 0.3-0.5), which shrinks the ratio by as much. Measured on clean
-# 6-10 minute recordings (bench/load_change.py): its largest value after the first
-# minutes was 1-4.5; a 1 % step brings it to 10 within ~15 s of entering the history.
+# variance factors are 0.25-0.46, bench/online_sigma.py), which shrinks the ratio by as
+# much. Measured on clean 6-10 minute recordings (bench/load_change.py): no false alarm in
+# 50 minutes; a 1 % step is detected 12-25 s after it.
 CHANGE_STATISTIC = 6.0
 CHANGE_CONFIRMATIONS = 3
 # The test needs a reference: marginalised data of at least this many metres, and a change
