@@ -58,9 +58,9 @@ def run_case(job):
     if name is not None:
         effect = next(e for e in report["effects"] if e["name"] == name)
         value = effect.get("value")
-        params = effect["evidence"].get("params")
-        if name == "radius_drift" and params is not None:  # both wheels' drifts
-            estimate = " / ".join(f"{100 * a:+.1f}" for a in params) + " %/h"
+        drifts = effect["evidence"].get("params")
+        if name == "radius_drift" and drifts is not None:  # both wheels' drifts
+            estimate = " / ".join(f"{100 * a:+.1f}" for a in drifts) + " %/h"
         elif value is not None:
             estimate = f"{value:.4g} ± {effect['sigma']:.2g}" if effect.get("sigma") else f"{value:.4g}"
     unexplained = [u["regressor"] for u in report["unexplained"]

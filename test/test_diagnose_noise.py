@@ -193,7 +193,6 @@ def test_clock_offset_and_sweep_delay_are_not_selected_together(tmp_path):
 def test_noise_effects_scale_the_wheels_noise_not_the_sideways_slip():
     # A floor or speed where the wheels slip more scales their noise; the sideways slip
     # (full rank for the edges), the encoders' quantisation and the interpolation stay.
-    from types import SimpleNamespace
     from sclam_ros.diagnosis.diagnose import OdometryCovariance
     params = SclamParams()
     k = np.array([0.1, 0.1, 0.5])

@@ -51,6 +51,8 @@ def _likelihood_ratio(evidence) -> str:
 
 
 def format_summary(report) -> str:
+    from sclam_ros.diagnosis.identifiability import SIGMA_RATIO
+
     lines = [f"held-out error: base {report['base']['error']:.4f}, "
              f"extended {report['extended']['error']:.4f}"]
     if "error_cross_run" in report["extended"]:
@@ -73,7 +75,8 @@ def format_summary(report) -> str:
         ident = e["evidence"]["identifiability"]
         if not e["selected"] and not ident["determined"] and ident["sigma_ratio"] is not None:
             lines.append(f"    not determined by this recording: its σ is "
-                         f"{ident['sigma_ratio']:.2f} of its prior's (at most 0.5 to join)")
+                         f"{ident['sigma_ratio']:.2f} of its prior's (at most "
+                         f"{SIGMA_RATIO} to join)")
         stand_in = e["evidence"].get("stand_in_for")
         if stand_in and not e["selected"]:
             lines.append(f"    {stand_in['regressor']} explains more of what it would fit "

@@ -4,7 +4,8 @@ model's calibration move more than its uncertainty allows?
 An effect joins the model only if it is determined together with the selected ones:
 - its parameters' posterior σ is at most SIGMA_RATIO of their prior σ (the prior that
   keeps an unexcited effect well-posed; at σ ≈ prior the data say nothing about it; for
-  a noise effect with a σ, its log factor's against NOISE_LOG_PRIOR_SIGMA), and
+  a noise effect with a σ, its log factor's against a log uniform over the factors it
+  searches, _noise_sigma_ratio), and
 - no correlation between its parameters and a selected effect's exceeds MAX_CORRELATION.
   For mechanical effects: of the joint marginal covariance in the graph. For noise
   effects: of the log factors they put on the edges (a carpet the robot only crosses
@@ -21,12 +22,6 @@ import numpy as np
 from sclam_ros.core.solver import marginal_covariance
 
 SIGMA_RATIO = 0.5
-# A noise effect's factors are searched between 1/8 and 8 (floor_noise.LEVELS); as a prior,
-# its log uniform over that range: σ = ln 8 / √3 ≈ 1.2. (On the Mines exp1 log, scans
-# re-stamped by 160 ms, a rectangle of a few edges was selected with a variance ratio of
-# 46 ± 110, a log σ of 2.4, and moved the held-out error by 0.01 nats per edge; one room's
-# simulated carpet gives a log σ of about 0.2, bench/diagnose_effects.py.)
-NOISE_LOG_PRIOR_SIGMA = float(np.log(8.0) / np.sqrt(3.0))
 MAX_CORRELATION = 0.9
 # The calibration moving by more than this many of the extended model's σ when effects are
 # added is said in the report's warnings.
@@ -38,12 +33,17 @@ def _log_scales(effect, edges):
 
 
 def _noise_sigma_ratio(effect):
-    """σ of a fitted noise effect's log factor over NOISE_LOG_PRIOR_SIGMA, or None for an
-    effect that states no σ."""
+    """σ of a fitted noise effect's log factor over its prior's, or None for an effect that
+    states no σ. The prior: the log uniform over the factors the effect searches (LEVELS,
+    floor_noise: 1/8 to 8, σ = ln 8 / √3 ≈ 1.2). (On the Mines exp1 log, scans re-stamped by
+    160 ms, a rectangle of a few edges was selected with a variance ratio of 46 ± 110, a log
+    σ of 2.4, and moved the held-out error by 0.01 nats per edge; one room's simulated carpet
+    gives a log σ of about 0.2, bench/diagnose_effects.py.)"""
     sigma = effect.value_sigma()
     if sigma is None or not effect.value() > 0:
         return None
-    return float(sigma / effect.value() / NOISE_LOG_PRIOR_SIGMA)
+    prior = np.ptp(effect.LEVELS) / np.sqrt(12.0)
+    return float(sigma / effect.value() / prior)
 
 
 def check(candidate, selected, fit, noise, edges) -> dict:
