@@ -6,13 +6,12 @@ Run: .venv/bin/python bench/calibrator_memory.py [--hours 1]
 """
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 
 def rss_mb() -> float:
@@ -48,7 +47,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--hours", type=float, default=1.0)
     args = parser.parse_args()
-    samples = memory_run(args.hours, Path(tempfile.mkdtemp(prefix="sclam_memory_")))
+    samples = memory_run(args.hours, scratch_dir("sclam_memory_"))
     print(f"memory: {args.hours:g} h of simulated data (10 Hz / 360 beams, 100 Hz encoders) "
           "fed to the OnlineCalibrator; RSS every simulated minute")
     every = max(1, len(samples) // 12)

@@ -1,7 +1,10 @@
 """Shared by the benchmark scripts: simulate a recording, calibrate it, time it."""
 from __future__ import annotations
 
+import atexit
+import os
 import resource
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -14,10 +17,30 @@ from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
 
 
+def scratch_dir(prefix: str) -> Path:
+    """A new directory under the system's temporary folder for a bench's recordings,
+    removed when the bench exits (the matrix's 180 bags are 1-2 GB, and runs add up) unless
+    SCLAM_BENCH_KEEP=1, which keeps it and says where. Only the process that made it
+    removes it: the worker processes a bench forks end without running it."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    owner = os.getpid()
+
+    def remove():
+        if os.getpid() != owner:
+            return
+        if os.environ.get("SCLAM_BENCH_KEEP") == "1":
+            print(f"(bench recordings kept in {path})", flush=True)
+        else:
+            shutil.rmtree(path, ignore_errors=True)
+
+    atexit.register(remove)
+    return path
+
+
 def simulate_and_calibrate(robot, duration, seed, true_overrides=None, nominal_overrides=None,
                            workdir=None, **sim_options):
     """(truth, result, seconds spent calibrating) for one simulated recording."""
-    workdir = Path(workdir or tempfile.mkdtemp(prefix="sclam_bench_"))
+    workdir = Path(workdir or scratch_dir("sclam_bench_"))
     out = workdir / f"{robot}_{seed}_{int(duration)}"
     truth = simulate(out, robot=robot, duration=duration, seed=seed,
                      true_overrides=true_overrides, overwrite=True, **sim_options)

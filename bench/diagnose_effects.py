@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -39,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 ROOM = {"x_min": 0.0, "x_max": 11.0, "y_min": 9.0, "y_max": 16.0}  # room n1 of the office
 EXTRA_SLIP = 0.006  # fraction of a revolution after one revolution
@@ -157,7 +156,7 @@ def main():
     ap.add_argument("--jobs", type=int, default=1)
     args = ap.parse_args()
     names = [n.strip() for n in args.scenarios.split(",")]
-    work = tempfile.mkdtemp(prefix="sclam_diagnose_bench_")
+    work = scratch_dir("sclam_diagnose_bench_")
     cases = [(n, s) for n in names for s in range(args.first_seed, args.first_seed + args.seeds)]
     results = {n: [] for n in names}
     with ProcessPoolExecutor(args.jobs) as pool:

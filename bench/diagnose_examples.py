@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 # label, simulate() keywords, duration s, effect whose value is compared, what was injected
 CASES = [
@@ -74,7 +73,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
-    workdir = tempfile.mkdtemp(prefix="sclam_diag_examples_")
+    workdir = scratch_dir("sclam_diag_examples_")
     jobs = [(number, *case, workdir) for number, case in enumerate(CASES)]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_case, jobs))

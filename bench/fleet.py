@@ -16,11 +16,10 @@ import json
 import shutil
 import statistics
 import subprocess
-import tempfile
 import time
 from pathlib import Path
 
-from common import table
+from common import scratch_dir, table
 
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.sim import simulate
@@ -78,7 +77,7 @@ def main():
     ap.add_argument("--long", type=float, default=10.0, help="minutes of the long recording")
     ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
-    work = Path(tempfile.mkdtemp(prefix="sclam_fleet_bench_"))
+    work = scratch_dir("sclam_fleet_bench_")
     try:
         if args.recordings:
             print(fleet_table(work, args.recordings, args.duration, args.repeat), "\n", flush=True)

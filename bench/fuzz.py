@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 from sclam_ros.sim import fuzz  # noqa: E402
 
@@ -49,7 +48,7 @@ def main() -> int:
     parser.add_argument("--work", help="folder for the recordings (default: a temporary one)")
     args = parser.parse_args()
     names = args.cases or list(fuzz.CASES)
-    work = Path(args.work or tempfile.mkdtemp(prefix="sclam_fuzz_"))
+    work = Path(args.work or scratch_dir("sclam_fuzz_"))
     sources = work / "sources"
     sources.mkdir(parents=True, exist_ok=True)
     needed = sorted({fuzz.CASES[n].source for n in names} | {"good"})

@@ -25,14 +25,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 SETTLE = 120.0  # s: the first estimates (window filling) are not judged
 
@@ -131,7 +130,7 @@ def main():
     ap.add_argument("--jobs", type=int, default=2, help="processes (one per core)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=list(SCENARIOS))
     args = ap.parse_args()
-    workdir = tempfile.mkdtemp(prefix="sclam_load_change_")
+    workdir = scratch_dir("sclam_load_change_")
     jobs = [(name, seed, workdir) for name in args.scenarios for seed in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_one, jobs))

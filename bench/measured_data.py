@@ -20,7 +20,6 @@ heading error, against time_offset.
 Repeatability of r_l, r_r, b between runs for both, against the paper's two PowerBot runs.
 """
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +40,9 @@ from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.io.recording import read_recording
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.core.solver import marginal_covariance, solve_with_variance_components
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import scratch_dir  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 WHEELS = CALIBRATION_KEYS[:3]
@@ -237,7 +239,7 @@ def mines(data: Path, figures: Path):
         return None
     print("\n## breezyslam-mines\n")
     _print_tick_stamp_check(runs_src)
-    work = Path(tempfile.mkdtemp(prefix="mines_"))
+    work = scratch_dir("mines_")
     variants = {(src.stem, delay): _mines_variant(src, delay, work)
                 for src in runs_src for delay in SCAN_DELAYS}
     runs = [src.stem for src in runs_src]

@@ -14,11 +14,10 @@ from __future__ import annotations
 import itertools
 import math
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 from sclam_ros.core.estimator import calibrate_keyframes  # noqa: E402
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams  # noqa: E402
@@ -55,7 +54,7 @@ def main(argv) -> int:
     if not all(s.exists() for s in sources):
         print(f"breezyslam-mines not found under {data}; nothing to do")
         return 0
-    work = Path(tempfile.mkdtemp(prefix="mines_agreement_"))
+    work = scratch_dir("mines_agreement_")
     results = {}
     for src in sources:
         results.update(calibrations(src, work))

@@ -31,14 +31,13 @@ import os
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 200))
@@ -245,7 +244,7 @@ def main():
     args = parser.parse_args()
     from sclam_ros.sim import simulate
 
-    workdir = Path(tempfile.mkdtemp(prefix="sclam_latency_"))
+    workdir = scratch_dir("sclam_latency_")
     rows = []
     for scan_rate, beams in ((10.0, 360), (40.0, 1080)):
         if scan_rate not in args.rates:

@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 
 CHECKPOINT = 30.0  # s between the estimates pooled over a run
 
@@ -69,7 +68,7 @@ def main():
     ap.add_argument("--settle", type=float, default=120.0)
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
-    work = tempfile.mkdtemp(prefix="sclam_online_sigma_")
+    work = scratch_dir("sclam_online_sigma_")
     with ProcessPoolExecutor(args.jobs) as pool:
         runs = list(pool.map(_run, [(s, args.duration, args.settle, work) for s in range(1, args.seeds + 1)]))
     rows = []

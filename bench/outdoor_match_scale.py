@@ -28,14 +28,13 @@ Run: .venv/bin/python bench/outdoor_match_scale.py [--seeds 8] [--duration 120] 
 from __future__ import annotations
 
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import seeds_arguments, table  # noqa: E402
+from common import scratch_dir, seeds_arguments, table  # noqa: E402
 
 VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "trunks as square boxes",
             "without the trunks", "without the parked cars")
@@ -132,7 +131,7 @@ def _mean_se(values):
 
 def main():
     args = seeds_arguments(__doc__, seeds=8, duration=120.0).parse_args()
-    work = tempfile.mkdtemp(prefix="sclam_outdoor_scale_")
+    work = scratch_dir("sclam_outdoor_scale_")
     jobs = [(v, s, args.duration, work) for v in VARIANTS for s in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_case, jobs))

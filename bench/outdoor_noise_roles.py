@@ -30,14 +30,13 @@ from __future__ import annotations
 
 import math
 import sys
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import seeds_arguments, table  # noqa: E402
+from common import scratch_dir, seeds_arguments, table  # noqa: E402
 from sensor_matrix import ROWS  # noqa: E402
 
 OUTDOOR = ROWS["outdoor, default laser"]
@@ -198,7 +197,7 @@ def run_one(job):
 
 def main():
     args = seeds_arguments(__doc__, seeds=20, duration=120.0).parse_args()
-    workdir = tempfile.mkdtemp(prefix="sclam_outdoor_roles_")
+    workdir = scratch_dir("sclam_outdoor_roles_")
     jobs = [(v, s, args.duration, workdir) for v in VARIANTS for s in range(1, args.seeds + 1)]
     # One job per process: the patches are process-wide.
     with ProcessPoolExecutor(args.jobs, max_tasks_per_child=1) as pool:

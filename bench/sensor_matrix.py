@@ -35,7 +35,6 @@ import dataclasses
 import json
 import math
 import sys
-import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -43,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import scratch_dir, table  # noqa: E402
 from outdoor_match_scale import VARIANTS as OUTDOOR_VARIANTS, scene_variant  # noqa: E402
 
 DEG = math.pi / 180.0
@@ -245,7 +244,7 @@ def main():
         ROWS.clear()
         ROWS.update(FACTOR_ROWS[args.factors])
     names = [n for i, n in enumerate(ROWS) if args.rows is None or i in args.rows]
-    workdir = tempfile.mkdtemp(prefix="sclam_sensor_matrix_")
+    workdir = scratch_dir("sclam_sensor_matrix_")
     jobs = [(number, name, ROWS[name], seed, args.duration, workdir, args.true_nominal)
             for number, name in enumerate(names) for seed in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(args.jobs) as pool:

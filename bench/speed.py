@@ -11,11 +11,10 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
-from common import table
+from common import scratch_dir, table
 
 CHILD = r"""
 import json, sys, time, resource
@@ -42,7 +41,7 @@ def main():
     args = ap.parse_args()
     from sclam_ros.sim import simulate
 
-    work = Path(tempfile.mkdtemp(prefix="sclam_speed_"))
+    work = scratch_dir("sclam_speed_")
     rows = []
     for minutes in args.minutes:
         bag = work / f"powerbot_{minutes:g}min"
