@@ -119,11 +119,11 @@ def _patch(variant, twin):
             out = (out[0], z, out[2])
         return out
 
-    def reference_from_points(cls, points, noise=None, usable_range=np.inf):
+    def reference_from_points(cls, points, noise=None, usable_range=np.inf, small_objects=False):
         clean = twin.clean_points[:, :2]
         if variant == VARIANTS[2]:
-            return from_points(cls, clean, noise, usable_range)
-        reference = from_points(cls, points, noise, usable_range)
+            return from_points(cls, clean, noise, usable_range, small_objects)
+        reference = from_points(cls, points, noise, usable_range, small_objects)
         if variant == VARIANTS[3] and reference is not None:
             kept = cKDTree(np.asarray(points, float)[:, :2]).query(reference.points)[1]
             reference.anchors = clean[kept]

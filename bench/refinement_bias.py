@@ -146,8 +146,9 @@ def _measure_row(job):
             ranges = _measured(true, model, which, rng)
             if clear_of_limit:
                 ranges[ranges > model.range_max - clear_of_limit * noise] = np.inf
-            reference = point_to_line.ReferenceScan.from_points(scan_to_points(_scan(ranges[0], model)),
-                                                                fit_noise, usable_range)
+            reference = point_to_line.ReferenceScan.from_points(
+                scan_to_points(_scan(ranges[0], model)), fit_noise, usable_range,
+                small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])

@@ -350,3 +350,53 @@ def test_returns_used_as_their_own_origin_are_not_chosen_by_their_noise():
     offsets = np.concatenate(offsets)
     assert len(offsets) > 10000
     assert abs(offsets.mean()) < 3 * offsets.std() / np.sqrt(len(offsets)), offsets.mean()
+
+
+def _room_with_trunk(angles, trunk=(3.0, 0.0), radius=0.3):
+    """Ranges in a 10 m × 10 m room centred on the laser, with a round trunk standing in it."""
+    d = np.column_stack([np.cos(angles), np.sin(angles)])
+    with np.errstate(divide="ignore"):
+        walls = np.min(np.where(np.abs(d) > 1e-9, 5.0 / np.abs(d), np.inf), axis=1)
+    centre = np.asarray(trunk)
+    along = d @ centre
+    disc = along ** 2 - (centre @ centre - radius ** 2)
+    hit = (disc > 0) & (along > 0)
+    trunk_range = np.where(hit, along - np.sqrt(np.where(hit, disc, 0.0)), np.inf)
+    return np.minimum(walls, trunk_range)
+
+
+def test_object_extent_tells_a_trunk_from_the_walls_behind_it():
+    ranges = _room_with_trunk(ANGLES)
+    points = np.column_stack([ranges * np.cos(ANGLES), ranges * np.sin(ANGLES)])
+    extent = point_to_line._object_extent(points)
+    on_trunk = np.hypot(points[:, 0] - 3.0, points[:, 1]) < 0.31
+    assert on_trunk.sum() >= 8
+    # The trunk's visible half: at most its 0.6 m diameter.
+    assert np.all(extent[on_trunk] <= 0.6 + 1e-6)
+    # The walls are one piece around the laser (across the scan's seam), the room's diagonal.
+    assert np.allclose(extent[~on_trunk], np.hypot(10.0, 10.0), atol=0.05)
+    # Half a turn: its two ends are not consecutive returns, and its walls still one piece each side.
+    half = (ANGLES > -np.pi / 2) & (ANGLES < np.pi / 2)
+    assert np.all(point_to_line._object_extent(points[half])[~on_trunk[half]] > 4.0)
+
+
+def test_small_objects_get_no_line_on_a_noisy_laser():
+    rng = np.random.default_rng(7)
+    ranges = _room_with_trunk(ANGLES, trunk=(1.5, 0.5), radius=0.4) + rng.normal(0.0, 0.01, len(ANGLES))
+    points = np.column_stack([ranges * np.cos(ANGLES), ranges * np.sin(ANGLES)])
+    near_trunk = lambda p: np.hypot(p[:, 0] - 1.5, p[:, 1] - 0.5) < 0.45  # noqa: E731
+    plain = point_to_line.ReferenceScan.from_points(points)
+    ruled = point_to_line.ReferenceScan.from_points(points, small_objects=True)
+    assert near_trunk(plain.points).sum() > 0  # its faces pass the straightness test
+    assert near_trunk(ruled.points).sum() == 0
+    assert len(ruled.points) == len(plain.points) - near_trunk(plain.points).sum()
+
+
+def test_the_small_object_rule_follows_the_judged_noise():
+    from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
+
+    for noise, rule in ((0.003, False), (0.01, True)):
+        matcher = point_to_line.RefinedScanMatcher(ScanMatcher())
+        for scan in _office_scans(noise):
+            matcher._remember_reference(scan, scan_to_points(scan))
+        assert matcher._small_objects == rule
