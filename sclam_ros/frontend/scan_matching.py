@@ -104,10 +104,10 @@ class NoiseModel:
     odometry guess of a robot miscalibrated by +2 % / −3 %) on the z the graph gets
     (KISS-ICP, then the point-to-line refinement), error e = z ⊖ z_true:
 
-      - bias (mean e): −0.02 / 0.00 mm, 0.00 mrad — none measurable;
-      - σ (robust, 1.4826·MAD) 1.14 / 1.07 mm, 0.24 mrad; plain σ 1.18 / 1.13 mm,
-        0.26 mrad (99th pct of |e| 3.5 / 3.3 mm, 0.7 mrad);
-      - it hardly grows with the motion: translation 0.9–1.6 mm and rotation 0.15–0.40 mrad
+      - bias (mean e): −0.02 / −0.01 mm, 0.00 mrad — none measurable;
+      - σ (robust, 1.4826·MAD) 1.17 / 1.10 mm, 0.25 mrad; plain σ 1.21 / 1.16 mm,
+        0.26 mrad (99th pct of |e| 3.5 / 3.4 mm, 0.7 mrad);
+      - it hardly grows with the motion: translation 0.9–1.5 mm and rotation 0.15–0.37 mrad
         in every bin from standing still to 8 cm and 0.1 rad per scan (the bench's binned
         table). The refinement measures each scan against the previous one's wall lines,
         whose noise does not depend on how far the laser moved between them. A model
@@ -117,14 +117,14 @@ class NoiseModel:
         err/σ of the default laser's x 0.57 against 0.76 with this one
         (`python bench/sensor_matrix.py --seeds 20 --duration 120`);
       - no dependence on the point count between 250 and 400 registered points;
-      - lag-1 correlation of consecutive errors −0.41 in x, y and θ: part of the error
+      - lag-1 correlation of consecutive errors −0.41 to −0.43 in x, y and θ: part of the error
         belongs to each scan's pose in the local map and cancels between consecutive z
         (for pure per-pose errors it would be −0.5). solver.chain_correlated_covariance
         accounts for it in the reported σ.
 
-    The least-squares fit of |e| gave (1.09 mm, 0.45 mm/m, 1.32 mm/rad; 0.22 mrad,
-    0.58 mrad/m, 0.44 mrad/rad) with χ²/DoF 1.10 / 1.01 / 1.06; the defaults are that fit
-    scaled by 1.03 so that χ²/DoF ≈ 1. Where a pair of scans fixes the motion less well
+    The least-squares fit of |e| gives (1.12 mm, 0.36 mm/m, 1.25 mm/rad; 0.24 mrad,
+    0.36 mrad/m, 0.41 mrad/rad) with χ²/DoF 1.09 / 1.01 / 1.06; under the defaults below
+    χ²/DoF is 1.08 / 1.00 / 1.04. Where a pair of scans fixes the motion less well
     (noisier lasers, fewer walls) the refinement's own covariance is added to this model
     (point_to_line.RefinedScanMatcher), and the calibration rescales the laser edges'
     noise from the residuals of each recording (variance components), so the model's
