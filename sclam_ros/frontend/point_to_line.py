@@ -234,10 +234,9 @@ def _object_extent(points):
     # Returns BREAKPOINT_INCIDENCE or more apart in bearing (dropouts, a field of view's
     # ends) are never one surface.
     near = dphi < BREAKPOINT_INCIDENCE
-    reach = np.where(near, np.minimum(ranges, ranges[following]) * np.sin(dphi)
-                     / np.sin(np.where(near, BREAKPOINT_INCIDENCE - dphi, 1.0)), 0.0)
-    cut = np.hypot(*(points[following] - points).T) > reach + 3.0 * NOISY_RANGE
-    cut[~near] = True
+    reach = (np.minimum(ranges, ranges[following]) * np.sin(dphi)
+             / np.sin(np.where(near, BREAKPOINT_INCIDENCE - dphi, 1.0)))
+    cut = ~near | (np.hypot(*(points[following] - points).T) > reach + 3.0 * NOISY_RANGE)
     if not cut.any():
         return np.full(n, np.inf)  # one closed surface around the laser
     # Pieces start after each cut; rolled so that the first piece starts at index 0.
