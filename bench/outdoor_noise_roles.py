@@ -14,17 +14,26 @@ the noise-free returns of the same scan in one role at a time:
   - reference anchors noise-free: only the points the residuals are measured from;
   - pairing at the true motion: each new point paired once, by its noise-free position at
     the true motion, and kept with that line (the residuals noisy as recorded);
+  - pairs gated along the line: a new point is paired with its nearest anchor when it lies
+    in an ellipse around it, MAX_PAIR_DISTANCE across the anchor's line and ALONG_REACH ×
+    the beams' spacing on the surface there along it (at least MAX_PAIR_DISTANCE, at most
+    ALONG_CAP), instead of within MAX_PAIR_DISTANCE of the anchor (a circle): where the
+    beams are sparse on the surface, whether a point between two anchors reaches one
+    otherwise depends on that anchor's own range noise. On references whose anchors are
+    their own returns (lines fitted over 6 beams), as the outdoor laser's;
   - matches = the true motion: every used match replaced by the truth (its information
     kept): what the rest of the pipeline (odometry, graph) makes of perfect matches;
   - matches mirrored about the truth: z' = 2·z_true − z, the same errors with their sign
     turned: a bias of the matches flips, one made by the graph would not.
 
-Mean error of r_l r_r b (%, ± standard error over the seeds) and of the laser yaw.
+Mean error of r_l r_r b (%, ± standard error over the seeds), of the laser yaw, and of the
+laser x with the RMS of its error over its reported σ (where the turns see the mount).
 
 The front end is patched for the run only (functions of point_to_line and scan_matching
 wrapped in each worker process); the product code is not changed.
 
 Run: .venv/bin/python bench/outdoor_noise_roles.py [--seeds 20] [--duration 120] [--jobs 2]
+     [--variants N ...]   (their numbers in the list above, from 0; default all)
 """
 from __future__ import annotations
 
@@ -42,7 +51,11 @@ from sensor_matrix import ROWS  # noqa: E402
 OUTDOOR = ROWS["outdoor, default laser"]
 VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference anchors noise-free", "pairing at the true motion",
-            "matches = the true motion", "matches mirrored about the truth")
+            "matches = the true motion", "matches mirrored about the truth",
+            "pairs gated along the line")
+ALONG_REACH = 0.6  # × the beams' spacing on the surface at the anchor
+ALONG_CAP = 1.0  # m
+MIN_COS_INCIDENCE = 0.2  # the spacing at grazing incidence is taken as at 78°
 
 
 class _Twin:
@@ -67,6 +80,7 @@ class _Twin:
         self.heading = np.unwrap(self.poses[:, 2])
         self.mount = np.array([truth["laser_x"], truth["laser_y"], truth["laser_yaw"]])
         self.clean_points = None  # of the scan being added, aligned with its noisy points
+        self.beam_spacing = None  # rad, of the scan being added (as thinned for the matcher)
         self.match_stamps = None  # (from, to) of the match being refined
 
     def points_of(self, scan, min_range, max_range):
@@ -90,6 +104,37 @@ class _Twin:
         return se2.between(laser(stamp_to), laser(stamp_from))
 
 
+def _refined(q, z0, pairs, reference):
+    """(z, pairs used, covariance) of point_to_line.refine_with_covariance's Gauss-Newton
+    iterations on the points q (n, 2), with the pairing of each iteration given by
+    `pairs(z, q turned by z) -> (used (n,) bool, index of each one's line in reference)`;
+    (z0, 0, None) where fewer than 20 are used."""
+    from sclam_ros.core import se2
+    from sclam_ros.frontend import point_to_line as ptl
+
+    z = np.array(z0, float)
+    for _ in range(ptl.ITERATIONS):
+        c, s = math.cos(z[2]), math.sin(z[2])
+        turned = q @ np.array([[c, s], [-s, c]])
+        used, line = pairs(z, turned)
+        if np.count_nonzero(used) < 20:
+            return np.array(z0, float), 0, None
+        normal, anchor = reference.normals[line[used]], reference.anchors[line[used]]
+        turned = turned[used]
+        residual = np.sum(normal * (turned + z[:2] - anchor), axis=1)
+        jac = np.stack((normal[:, 0], normal[:, 1],
+                        normal[:, 1] * turned[:, 0] - normal[:, 0] * turned[:, 1]))
+        weight = np.minimum(1.0, ptl.HUBER / np.maximum(np.abs(residual), 1e-12))
+        hessian = (jac * weight) @ jac.T + 1e-9 * np.eye(3)
+        step = -np.linalg.solve(hessian, (jac * weight) @ residual)
+        z = z + step
+        if math.hypot(step[0], step[1]) < 1e-6 and abs(step[2]) < 1e-7:
+            break
+    z[2] = se2.wrap_angle(z[2])
+    scale = 1.4826 * float(np.median(np.abs(residual)))
+    return z, int(np.count_nonzero(used)), scale**2 * np.linalg.inv(hessian)
+
+
 def _patch(variant, twin):
     """Wrap the front end's functions for `variant` (this worker process only)."""
     from scipy.spatial import cKDTree
@@ -111,6 +156,7 @@ def _patch(variant, twin):
     def refined_add_scan(matcher, scan, guess, points):
         config = matcher.matcher.config
         twin.clean_points = twin.points_of(scan, config.min_range, config.max_range)
+        twin.beam_spacing = abs(scan.angle_increment)
         out = add_scan(matcher, scan, guess, points)
         if out[1] is not None and variant in VARIANTS[5:]:
             z_true = twin.true_motion(out[0].stamp_from, out[0].stamp_to)
@@ -147,23 +193,36 @@ def _patch(variant, twin):
         if np.count_nonzero(ok) < 20:
             return np.array(z0, float), 0, None
         q, line = np.asarray(points, float)[ok, :2], line[ok]
-        normal, anchor = reference.normals[line], reference.anchors[line]
-        z = np.array(z0, float)
-        for _ in range(ptl.ITERATIONS):
-            c, s = math.cos(z[2]), math.sin(z[2])
-            turned = q @ np.array([[c, s], [-s, c]])
-            residual = np.sum(normal * (turned + z[:2] - anchor), axis=1)
-            jac = np.stack((normal[:, 0], normal[:, 1],
-                            normal[:, 1] * turned[:, 0] - normal[:, 0] * turned[:, 1]))
-            weight = np.minimum(1.0, ptl.HUBER / np.maximum(np.abs(residual), 1e-12))
-            hessian = (jac * weight) @ jac.T + 1e-9 * np.eye(3)
-            step = -np.linalg.solve(hessian, (jac * weight) @ residual)
-            z = z + step
-            if math.hypot(step[0], step[1]) < 1e-6 and abs(step[2]) < 1e-7:
-                break
-        z[2] = se2.wrap_angle(z[2])
-        scale = 1.4826 * float(np.median(np.abs(residual)))
-        return z, int(len(q)), scale**2 * np.linalg.inv(hessian)
+        return _refined(q, z0, lambda z, turned: (np.ones(len(q), bool), line), reference)
+
+    def refine_gated_along_line(reference, points, z0):
+        """refine_with_covariance with each point paired with its nearest anchor when it lies
+        in the anchor's ellipse (MAX_PAIR_DISTANCE across its line, `reach` along it).
+        Where the reference's anchors are fitted lines (a noisy laser's wide fit), as
+        recorded."""
+        if reference is None or not np.array_equal(reference.anchors, reference.points):
+            return refine(reference, points, z0)
+        anchor, normal = reference.anchors, reference.normals
+        distance = np.hypot(anchor[:, 0], anchor[:, 1])
+        cos_incidence = np.abs(np.sum(normal * anchor, axis=1)) / np.maximum(distance, 1e-9)
+        reach = np.clip(ALONG_REACH * distance * twin.beam_spacing
+                        / np.maximum(cos_incidence, MIN_COS_INCIDENCE),
+                        ptl.MAX_PAIR_DISTANCE, ALONG_CAP)
+        q = np.asarray(points, float)[:, :2]
+
+        def pairs(z, turned):
+            moved = turned + z[:2]
+            dist, line = reference.tree.query(moved, distance_upper_bound=reach.max())
+            ok = np.isfinite(dist)
+            line = np.where(ok, line, 0)
+            offset = moved - anchor[line]
+            across = np.abs(np.sum(normal[line] * offset, axis=1))
+            along = np.abs(normal[line, 1] * offset[:, 0] - normal[line, 0] * offset[:, 1])
+            ok &= (along / reach[line]) ** 2 + (across / ptl.MAX_PAIR_DISTANCE) ** 2 <= 1.0
+            ok &= np.hypot(*(anchor[line] - z[:2]).T) <= reference.usable_range
+            return ok, line
+
+        return _refined(q, z0, pairs, reference)
 
     scan_matching.ScanMatcher.add_scan = matcher_add_scan
     ptl.RefinedScanMatcher.add_scan = refined_add_scan
@@ -171,6 +230,8 @@ def _patch(variant, twin):
     ptl._confirmed = confirmed_with
     if variant == VARIANTS[4]:
         ptl.refine_with_covariance = refine_paired_at_truth
+    if variant == VARIANTS[7]:
+        ptl.refine_with_covariance = refine_gated_along_line
 
 
 def run_one(job):
@@ -192,28 +253,34 @@ def run_one(job):
     error = {k: result.estimate[k] - truth[k] for k in CALIBRATION_KEYS}
     return variant, seed, [100.0 * error[k] / truth[k] for k in
                            ("wheel_radius_left", "wheel_radius_right", "wheel_base")], \
-        math.degrees(error["laser_yaw"])
+        math.degrees(error["laser_yaw"]), (error["laser_x"], result.sigma["laser_x"])
 
 
 def main():
-    args = seeds_arguments(__doc__, seeds=20, duration=120.0).parse_args()
+    ap = seeds_arguments(__doc__, seeds=20, duration=120.0)
+    ap.add_argument("--variants", type=int, nargs="+", default=list(range(len(VARIANTS))))
+    args = ap.parse_args()
+    variants = [VARIANTS[i] for i in args.variants]
     workdir = scratch_dir("sclam_outdoor_roles_")
-    jobs = [(v, s, args.duration, workdir) for v in VARIANTS for s in range(1, args.seeds + 1)]
+    jobs = [(v, s, args.duration, workdir) for v in variants for s in range(1, args.seeds + 1)]
     # One job per process: the patches are process-wide.
     with ProcessPoolExecutor(args.jobs, max_tasks_per_child=1) as pool:
         results = list(pool.map(run_one, jobs))
     rows = []
-    for variant in VARIANTS:
+    for variant in variants:
         relative = np.array([r[2] for r in results if r[0] == variant])
         yaw = np.array([r[3] for r in results if r[0] == variant])
+        x_error, x_sigma = np.array([r[4] for r in results if r[0] == variant]).T
         se = relative.std(axis=0, ddof=1) / math.sqrt(len(relative))
         rows.append([variant, " ".join(f"{m:+.3f}" for m in relative.mean(axis=0)),
                      " ".join(f"{v:.3f}" for v in se),
-                     f"{yaw.mean():+.3f} ± {yaw.std(ddof=1) / math.sqrt(len(yaw)):.3f}"])
+                     f"{yaw.mean():+.3f} ± {yaw.std(ddof=1) / math.sqrt(len(yaw)):.3f}",
+                     f"{1e3 * x_error.mean():+.2f} ± {1e3 * x_error.std(ddof=1) / math.sqrt(len(x_error)):.2f}",
+                     f"{np.sqrt(np.mean((x_error / x_sigma) ** 2)):.2f}"])
     print(f"outdoor row, default laser, {args.seeds} seeds × {args.duration:.0f} s; errors "
           "against the simulator's truth")
     print(table(rows, ["refinement given", "mean error r_l r_r b %", "its standard error %",
-                       "laser yaw error °"]))
+                       "laser yaw error °", "laser x error mm", "laser x RMS err/σ"]))
 
 
 if __name__ == "__main__":
