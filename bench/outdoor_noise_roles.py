@@ -14,7 +14,7 @@ the noise-free returns of the same scan in one role at a time:
   - reference anchors noise-free: only the points the residuals are measured from;
   - pairing at the true motion: each new point paired once, by its noise-free position at
     the true motion, and kept with that line (the residuals noisy as recorded);
-  - pairs gated along the line: a new point is paired with its nearest anchor when it lies
+  Pairs gated along the line: a new point is paired with its nearest anchor when it lies
     in an ellipse around it, MAX_PAIR_DISTANCE across the anchor's line and ALONG_REACH ×
     the beams' spacing on the surface there along it (at least MAX_PAIR_DISTANCE, at most
     ALONG_CAP), instead of within MAX_PAIR_DISTANCE of the anchor (a circle): where the
@@ -24,7 +24,11 @@ the noise-free returns of the same scan in one role at a time:
   - matches = the true motion: every used match replaced by the truth (its information
     kept): what the rest of the pipeline (odometry, graph) makes of perfect matches;
   - matches mirrored about the truth: z' = 2·z_true − z, the same errors with their sign
-    turned: a bias of the matches flips, one made by the graph would not.
+    turned: a bias of the matches flips, one made by the graph would not;
+  - pairs gated along the line (below);
+  - matches and wheel increments = the truth: as "matches = the true motion", and each
+    odometry edge's wheel increments replaced by those that drive the true motion between
+    its two stamps (one arc): what the graph makes of odometry without slip noise.
 
 Mean error of r_l r_r b (%, ± standard error over the seeds), of the laser yaw, and of the
 laser x with the RMS of its error over its reported σ (where the turns see the mount).
@@ -52,7 +56,8 @@ OUTDOOR = ROWS["outdoor, default laser"]
 VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference anchors noise-free", "pairing at the true motion",
             "matches = the true motion", "matches mirrored about the truth",
-            "pairs gated along the line")
+            "pairs gated along the line", "matches and wheel increments = the truth")
+TRUE_MATCHES = (VARIANTS[5], VARIANTS[8])
 ALONG_REACH = 0.6  # × the beams' spacing on the surface at the anchor
 ALONG_CAP = 1.0  # m
 MIN_COS_INCIDENCE = 0.2  # the spacing at grazing incidence is taken as at 78°
@@ -102,6 +107,24 @@ class _Twin:
             return se2.compose(base, self.mount)
 
         return se2.between(laser(stamp_to), laser(stamp_from))
+
+    def true_increments(self, stamp_from, stamp_to, truth):
+        """(left, right) wheel angles (rad) that drive the true base motion between the two
+        stamps along one arc, with the true radii and base."""
+        from sclam_ros.core import se2
+
+        def base(t):
+            return np.array([np.interp(t, self.stamps, self.poses[:, 0]),
+                             np.interp(t, self.stamps, self.poses[:, 1]),
+                             np.interp(t, self.stamps, self.heading)])
+
+        motion = se2.between(base(stamp_to), base(stamp_from))
+        turn = motion[2]
+        chord = math.copysign(math.hypot(motion[0], motion[1]), motion[0])
+        arc = chord * (0.5 * turn / math.sin(0.5 * turn)) if abs(turn) > 1e-9 else chord
+        half_turn = 0.5 * turn * truth["wheel_base"]
+        return np.array([(arc - half_turn) / truth["wheel_radius_left"],
+                         (arc + half_turn) / truth["wheel_radius_right"]])
 
 
 def _refined(q, z0, pairs, reference):
@@ -158,9 +181,9 @@ def _patch(variant, twin):
         twin.clean_points = twin.points_of(scan, config.min_range, config.max_range)
         twin.beam_spacing = abs(scan.angle_increment)
         out = add_scan(matcher, scan, guess, points)
-        if out[1] is not None and variant in VARIANTS[5:]:
+        if out[1] is not None and variant in TRUE_MATCHES + (VARIANTS[6],):
             z_true = twin.true_motion(out[0].stamp_from, out[0].stamp_to)
-            z = z_true.copy() if variant == VARIANTS[5] else 2.0 * z_true - out[1]
+            z = z_true.copy() if variant in TRUE_MATCHES else 2.0 * z_true - out[1]
             z[2] = se2.wrap_angle(z[2])
             out = (out[0], z, out[2])
         return out
@@ -247,8 +270,16 @@ def run_one(job):
     # No range noise, the same draws: the noise is drawn for every return either way.
     simulate(clean, duration=duration, seed=seed, overwrite=True, **dict(OUTDOOR, range_noise=1e-9))
     params = SclamParams.from_yaml(noisy / "params.yaml")
-    _patch(variant, _Twin(noisy, clean, truth, params))
+    twin = _Twin(noisy, clean, truth, params)
+    _patch(variant, twin)
     recording = read_recording(noisy, params)
+    if variant == VARIANTS[8]:
+        previous = None
+        for keyframe in recording.keyframes:
+            if keyframe.dphi is not None and previous is not None:
+                keyframe.dphi = twin.true_increments(previous.stamp, keyframe.stamp, truth)
+                keyframe.dphi_parts = None
+            previous = keyframe
     result = calibrate_keyframes(recording.keyframes, params, recording.rejections)
     error = {k: result.estimate[k] - truth[k] for k in CALIBRATION_KEYS}
     return variant, seed, [100.0 * error[k] / truth[k] for k in
