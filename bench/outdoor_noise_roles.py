@@ -1,4 +1,4 @@
-"""Where in the front end the outdoor row's range noise turns into long radii.
+"""Where the outdoor row's bias comes from: the front end's range noise, the wheels' slip.
 
 The sensor matrix's outdoor row calibrates the radii and base about 0.15-0.25 % large, and
 without range noise it does not (`bench/sensor_matrix.py --factors outdoor`). Here each
@@ -14,18 +14,17 @@ the noise-free returns of the same scan in one role at a time:
   - reference anchors noise-free: only the points the residuals are measured from;
   - pairing at the true motion: each new point paired once, by its noise-free position at
     the true motion, and kept with that line (the residuals noisy as recorded);
-  Pairs gated along the line: a new point is paired with its nearest anchor when it lies
+  - matches = the true motion: every used match replaced by the truth (its information
+    kept): what the rest of the pipeline (odometry, graph) makes of perfect matches;
+  - matches mirrored about the truth: z' = 2·z_true − z, the same errors with their sign
+    turned: a bias of the matches flips, one made by the graph would not;
+  - pairs gated along the line: a new point is paired with its nearest anchor when it lies
     in an ellipse around it, MAX_PAIR_DISTANCE across the anchor's line and ALONG_REACH ×
     the beams' spacing on the surface there along it (at least MAX_PAIR_DISTANCE, at most
     ALONG_CAP), instead of within MAX_PAIR_DISTANCE of the anchor (a circle): where the
     beams are sparse on the surface, whether a point between two anchors reaches one
     otherwise depends on that anchor's own range noise. On references whose anchors are
     their own returns (lines fitted over 6 beams), as the outdoor laser's;
-  - matches = the true motion: every used match replaced by the truth (its information
-    kept): what the rest of the pipeline (odometry, graph) makes of perfect matches;
-  - matches mirrored about the truth: z' = 2·z_true − z, the same errors with their sign
-    turned: a bias of the matches flips, one made by the graph would not;
-  - pairs gated along the line (below);
   - matches and wheel increments = the truth: as "matches = the true motion", and each
     odometry edge's wheel increments replaced by those that drive the true motion between
     its two stamps (one arc): what the graph makes of odometry without slip noise.
@@ -34,7 +33,8 @@ Mean error of r_l r_r b (%, ± standard error over the seeds), of the laser yaw,
 laser x with the RMS of its error over its reported σ (where the turns see the mount).
 
 The front end is patched for the run only (functions of point_to_line and scan_matching
-wrapped in each worker process); the product code is not changed.
+wrapped in each worker process; the last variant also rewrites the keyframes' increments
+before the calibration); the product code is not changed.
 
 Run: .venv/bin/python bench/outdoor_noise_roles.py [--seeds 20] [--duration 120] [--jobs 2]
      [--variants N ...]   (their numbers in the list above, from 0; default all)
