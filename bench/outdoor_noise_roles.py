@@ -97,28 +97,25 @@ class _Twin:
         a = scan.angles()[keep]
         return np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros(len(r))])
 
+    def base_pose(self, t):
+        """The true base pose at stamp t (heading unwrapped)."""
+        return np.array([np.interp(t, self.stamps, self.poses[:, 0]),
+                         np.interp(t, self.stamps, self.poses[:, 1]),
+                         np.interp(t, self.stamps, self.heading)])
+
     def true_motion(self, stamp_from, stamp_to):
+        """The laser's true motion between the two stamps, in its frame at stamp_from."""
         from sclam_ros.core import se2
 
-        def laser(t):
-            base = np.array([np.interp(t, self.stamps, self.poses[:, 0]),
-                             np.interp(t, self.stamps, self.poses[:, 1]),
-                             np.interp(t, self.stamps, self.heading)])
-            return se2.compose(base, self.mount)
-
-        return se2.between(laser(stamp_to), laser(stamp_from))
+        return se2.between(se2.compose(self.base_pose(stamp_to), self.mount),
+                           se2.compose(self.base_pose(stamp_from), self.mount))
 
     def true_increments(self, stamp_from, stamp_to, truth):
         """(left, right) wheel angles (rad) that drive the true base motion between the two
         stamps along one arc, with the true radii and base."""
         from sclam_ros.core import se2
 
-        def base(t):
-            return np.array([np.interp(t, self.stamps, self.poses[:, 0]),
-                             np.interp(t, self.stamps, self.poses[:, 1]),
-                             np.interp(t, self.stamps, self.heading)])
-
-        motion = se2.between(base(stamp_to), base(stamp_from))
+        motion = se2.between(self.base_pose(stamp_to), self.base_pose(stamp_from))
         turn = motion[2]
         chord = math.copysign(math.hypot(motion[0], motion[1]), motion[0])
         arc = chord * (0.5 * turn / math.sin(0.5 * turn)) if abs(turn) > 1e-9 else chord
