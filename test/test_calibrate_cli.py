@@ -27,8 +27,10 @@ def test_calibrate_recovers_truth_within_sigma(recording, tmp_path, capsys):
     result = json.loads(out_json.read_text())
     assert set(result) == set(CALIBRATION_KEYS) | {"sigma", "scans_used", "duration_s", "converged",
                                                    "observable", "warnings", "rejected", "messages",
-                                                   "nominal", "frames"}
+                                                   "nominal", "frames", "wheel_noise_correction"}
     assert result["converged"] is True
+    # A drive that turns both ways determines the base well: the dilution is corrected.
+    assert result["wheel_noise_correction"]["applied"] is True
     # A clean recording: nothing to warn about (the map warm-up is counted, not warned).
     assert result["warnings"] == [] and result["rejected"] == {"match_map_warmup": 3}
     assert all(result["observable"].values())

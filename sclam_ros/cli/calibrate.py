@@ -271,6 +271,20 @@ def run(args) -> int:
         log.removeHandler(warnings)
 
 
+def _explain_dilution(correction) -> None:
+    """One line on the wheel noise's regression dilution of k (core/dilution.py)."""
+    if correction is None:
+        return
+    shift = correction["shift_percent"]
+    moves = ", ".join(f"{k} {v:+.3f} %" for k, v in shift.items())
+    if correction["applied"]:
+        log.info("corrected for the wheel noise's regression dilution: %s", moves)
+    else:
+        log.warning("the wheel noise dilutes the odometry parameters on this drive by more than "
+                    "a first-order correction can take (it would move them by %s): the drive "
+                    "determines them weakly, and they may be off by that much", moves)
+
+
 def _run(args, warnings) -> int:
     from sclam_ros.core.estimator import CONVERGED_STEP_SIGMA, calibrate_keyframes
     from sclam_ros.core.params import SclamParams, atomic_write_text
@@ -301,6 +315,7 @@ def _run(args, warnings) -> int:
                     "per step: the estimate is not final", CONVERGED_STEP_SIGMA)
     print(format_table(result, truth))
     _explain_unobserved(result.observable)
+    _explain_dilution(result.wheel_noise_correction)
     if args.json:
         out = result.as_json()
         out["warnings"] = warnings

@@ -5,9 +5,11 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
+from sclam_ros.core import dilution
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.observability import Observability
@@ -53,6 +55,9 @@ class CalibrationResult:
     problem: object = field(repr=False, default=None)
     rejections: Rejections = field(default_factory=Rejections)
     observability: Observability = field(repr=False, default=None)  # what `observable` comes from
+    # The wheel noise's dilution of k (dilution.py): whether the correction was applied and
+    # how far it moved (or would have moved) r_l, r_r, b, in per cent; None: no correction
+    wheel_noise_correction: Optional[dict] = None
 
     def as_json(self) -> dict:
         out = {k: self.estimate[k] for k in CALIBRATION_KEYS}
@@ -65,7 +70,10 @@ class CalibrationResult:
         # parameters file it came from.
         out["nominal"] = {k: float(self.nominal[k]) for k in CALIBRATION_KEYS}
         out["rejected"] = dict(sorted(self.rejections.counts.items()))
+        if self.wheel_noise_correction is not None:
+            out["wheel_noise_correction"] = self.wheel_noise_correction
         return out
+
 
 
 def _at_least(model, sandwich):
@@ -126,7 +134,10 @@ def _judged_again(problem, observability, locks, result, scales, nominal, prior_
     return again, result, scales
 
 
-def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> CalibrationResult:
+def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
+                        correct_dilution=True) -> CalibrationResult:
+    """The batch calibration of a recording's keyframes; correct_dilution: take the wheel
+    noise's regression dilution out of k (core/dilution.py)."""
     if len(keyframes) < MIN_KEYFRAMES:
         raise CalibrationError(
             f"only {len(keyframes)} scans could be paired with encoder data (need at least "
@@ -147,7 +158,7 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         )
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     prior_sigma = graph_mod.prior_sigmas(nominal)
-    problem = graph_mod.build_problem(inputs, params, nominal)
+    problem = graph_mod.build_problem(inputs, params, nominal, correct_dilution=correct_dilution)
     # Judged at the start (nominal calibration, poses settled on it): observability is a
     # property of the motion, not of one noise realisation; at a fitted optimum an
     # undetermined direction could wander to where the curvature looks informative.
@@ -196,4 +207,5 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None) -> Ca
         problem=problem,
         rejections=rejections or Rejections(),
         observability=observability,
+        wheel_noise_correction=dilution.summary(problem, values),
     )

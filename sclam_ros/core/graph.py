@@ -12,7 +12,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from sclam_ros.core import factors, kinematics, se2
+from sclam_ros.core import dilution, factors, kinematics, se2
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.solver import CauchyKernel, Problem, Values
@@ -353,8 +353,10 @@ def gauge_anchors(inputs: GraphInputs) -> np.ndarray:
 
 
 def build_problem(inputs: GraphInputs, params, calibration, poses=None,
-                  nominal=None, extra_factors=()) -> Problem:
-    """The SCLAM least-squares problem over poses, k = (r_l, r_r, b) and l = (x, y, yaw)."""
+                  nominal=None, extra_factors=(), correct_dilution=True) -> Problem:
+    """The SCLAM least-squares problem over poses, k = (r_l, r_r, b) and l = (x, y, yaw);
+    with correct_dilution, the wheel base's regression dilution taken out of the cost
+    (dilution.py)."""
     calibration = np.asarray(calibration, float)
     nominal = calibration if nominal is None else np.asarray(nominal, float)
     if poses is None:
@@ -366,6 +368,9 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
         lower={"odometry": MIN_ODOMETRY_FRACTION * calibration[:3]},
     )
     odometry_cov = odometry_covariance(inputs, params, nominal[:3])
+    corrections = [dilution.wheel_noise_correction(
+        inputs, params, calibration[:3], odometry_cov, encoder_variance_floor(params))
+    ] if correct_dilution and len(inputs.odo_from) else []
     sigma = prior_sigmas(nominal)
     factor_list = [
         factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
@@ -378,7 +383,7 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
         *extra_factors,
     ]
     return Problem(values, factor_list, fixed={"poses": gauge_anchors(inputs)},
-                   kernels={"laser": LASER_KERNEL})
+                   kernels={"laser": LASER_KERNEL}, corrections=corrections)
 
 
 def calibration_of(values: Values) -> np.ndarray:

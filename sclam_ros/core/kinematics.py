@@ -173,6 +173,25 @@ def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
     part).
     """
     dphi = np.asarray(dphi, float)
+    cov = wheel_angle_covariance(dphi, k, wheel_noise, floor, increment_variance, parts)
+    s, _ = arc_length_and_rotation(dphi, k)
+    lateral = lateral_noise**2 * np.abs(s) + floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    if path_variance is not None:
+        k_arr = np.asarray(k)
+        lateral = lateral + np.asarray(path_variance, float) * (
+            np.mean(k_arr[..., :2], axis=-1) ** 2 / k_arr[..., 2]) ** 2
+    cov[..., 1, 1] += lateral
+    cov[..., 0, 0] += floor * np.mean(np.asarray(k)[..., :2]) ** 2
+    cov[..., 2, 2] += floor * (np.mean(np.asarray(k)[..., :2]) / np.asarray(k)[..., 2]) ** 2
+    return cov
+
+
+def wheel_angle_covariance(dphi, k, wheel_noise, floor=1e-12, increment_variance=None,
+                           parts=None):
+    """The part of motion_covariance that is noise in the wheel angles themselves (slip,
+    quantisation, interpolation), propagated through K: the noise of the odometry's
+    regressors, as opposed to the sideways slip the wheel model cannot express."""
+    dphi = np.asarray(dphi, float)
     var = np.full(dphi.shape, floor)
     if increment_variance is not None:
         var = var + np.asarray(increment_variance, float)
@@ -185,15 +204,6 @@ def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
         ju_parts = jacobian_u_composed(parts, k)
         cov = cov + np.einsum("...pij,...pj,...pkj->...ik", ju_parts,
                               wheel_noise**2 * np.abs(parts), ju_parts)
-    s, _ = arc_length_and_rotation(dphi, k)
-    lateral = lateral_noise**2 * np.abs(s) + floor * np.mean(np.asarray(k)[..., :2]) ** 2
-    if path_variance is not None:
-        k_arr = np.asarray(k)
-        lateral = lateral + np.asarray(path_variance, float) * (
-            np.mean(k_arr[..., :2], axis=-1) ** 2 / k_arr[..., 2]) ** 2
-    cov[..., 1, 1] += lateral
-    cov[..., 0, 0] += floor * np.mean(np.asarray(k)[..., :2]) ** 2
-    cov[..., 2, 2] += floor * (np.mean(np.asarray(k)[..., :2]) / np.asarray(k)[..., 2]) ** 2
     return cov
 
 

@@ -16,11 +16,12 @@ OptiOdom run files, so no interpolation is needed.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.core import kinematics, se2
+from sclam_ros.core import dilution, kinematics, se2
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.core.solver import marginal_covariance, solve_with_variance_components
 
@@ -35,6 +36,7 @@ class MocapCalibration:
     keyframes: int
     variance_scales: dict
     converged: bool
+    wheel_noise_correction: Optional[dict] = None  # dilution.summary
 
 
 def graph_inputs(stamps, ticks, truth, ticks_per_revolution, step=10) -> graph_mod.GraphInputs:
@@ -72,7 +74,8 @@ def build_problem(inputs, params: SclamParams, k, fix_k=False):
     if fix_k:
         problem = type(problem)(problem.values, problem.factors,
                                 fixed={**problem.fixed, "odometry": np.array([0])},
-                                kernels=problem.kernels, scales=problem.scales)
+                                kernels=problem.kernels, scales=problem.scales,
+                                corrections=problem.corrections)
     return problem
 
 
@@ -94,6 +97,7 @@ def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=
         keyframes=inputs.size,
         variance_scales=dict(scales),
         converged=result.converged,
+        wheel_noise_correction=dilution.summary(problem, result.values),
     )
 
 

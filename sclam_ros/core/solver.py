@@ -152,6 +152,8 @@ class System:
     per_factor: dict  # factor name -> dict(cost, chi2, count, dim, weights, squared_residual_sum)
     row_ranges: list  # (factor name, first row, end row) in stacking order
     normal: Optional[tuple] = None  # (H, g) once _normal_equations has formed them
+    # ½ ∂/∂y of the cost corrections (Problem.corrections), added to g = Jᵀr
+    gradient_offset: Optional[np.ndarray] = None
 
     def dense_jacobian(self) -> np.ndarray:
         return self.jacobian.toarray() if sp.issparse(self.jacobian) else self.jacobian
@@ -172,9 +174,14 @@ class SolverResult:
 class Problem:
     """Factors + initial values + which rows are fixed + a robust kernel per factor name."""
 
-    def __init__(self, values: Values, factors, fixed=None, kernels=None, scales=None):
+    def __init__(self, values: Values, factors, fixed=None, kernels=None, scales=None,
+                 corrections=()):
         self.values = values
         self.factors = list(factors)
+        # Terms of the cost that are not squared residuals, linear in one block's first
+        # row: `block`, term(values, scales) -> (cost, gradient); e.g.
+        # dilution.WheelNoiseCorrection. They move the minimum, not the curvature H.
+        self.corrections = list(corrections)
         self.fixed = fixed or {}
         self.kernels = kernels or {}
         # Variance scale per factor name: the factor's covariance is multiplied by it
@@ -243,7 +250,24 @@ class Problem:
                                    row0 * self.layout.size).reshape(row0, self.layout.size)
         else:
             jacobian = sp.csr_matrix((data, (rows, cols)), shape=(row0, self.layout.size))
-        return System(jacobian, np.concatenate(residuals), total_cost, per_factor, row_ranges)
+        correction, offset = self.cost_correction(values)
+        return System(jacobian, np.concatenate(residuals), total_cost + correction, per_factor,
+                      row_ranges, gradient_offset=offset)
+
+    def cost_correction(self, values: Values):
+        """Σ of the corrections' costs and ½ their gradient over the columns (the solver's
+        g is ½ ∂cost/∂y), or (0, None) when there is none."""
+        total, offset = 0.0, None
+        for correction in self.corrections:
+            if not correction.active:
+                continue
+            cost, gradient = correction.term(values, self.scales)
+            total += cost
+            first = self.layout.column_of_row[correction.block][0]
+            if first >= 0:
+                offset = np.zeros(self.layout.size) if offset is None else offset
+                offset[first:first + len(gradient)] += 0.5 * np.asarray(gradient)
+        return total, offset
 
     def cost(self, values: Values) -> float:
         total = 0.0
@@ -255,7 +279,7 @@ class Problem:
             whitened = np.einsum("mij,mj->mi", lin.sqrt_information, lin.residual)
             squared = np.einsum("mi,mi->m", whitened, whitened) / scale
             total += float(np.sum(self.kernel(factor).rho(squared)))
-        return total
+        return total + self.cost_correction(values)[0]
 
 
 class LinearSolver:
@@ -356,7 +380,10 @@ def _normal_equations(system: System):
         jac = system.jacobian
         hessian = jac.T @ jac
         hessian = hessian.tocsc() if sp.issparse(hessian) else hessian
-        system.normal = hessian, jac.T @ system.residual
+        gradient = jac.T @ system.residual
+        if system.gradient_offset is not None:
+            gradient = gradient + system.gradient_offset
+        system.normal = hessian, gradient
     return system.normal
 
 
@@ -538,7 +565,38 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
             problem.values = result.values
             result = levenberg_marquardt(problem, progress=progress, **lm_options)
     problem.values = result.values
+    result = settle_corrections(
+        problem, result, lambda: levenberg_marquardt(problem, progress=progress, **lm_options))
     return result, dict(problem.scales)
+
+
+def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverResult:
+    """Each active correction's move of the solution, −H⁻¹ (½ its gradient) over its block,
+    kept in `correction.shift`; those that do not hold at that size (correction.holds) are
+    deactivated and the problem solved again with `solve()`. Returns the final result."""
+    if not any(c.active for c in problem.corrections):
+        return result
+    _, _, lu = factorize_information(problem, result.values, result.system)
+    dropped = False
+    for correction in problem.corrections:
+        if not correction.active:
+            continue
+        _, gradient = correction.term(result.values, problem.scales)
+        first = problem.layout.column_of_row[correction.block][0]
+        if first < 0:  # its block is held: it moves nothing
+            correction.shift = np.zeros(len(gradient))
+            continue
+        offset = np.zeros(problem.layout.size)
+        offset[first:first + len(gradient)] = 0.5 * np.asarray(gradient)
+        correction.shift = -lu.solve(offset)[first:first + len(gradient)]
+        if not correction.holds(correction.shift, result.values):
+            correction.active, dropped = False, True
+    if not dropped:
+        return result
+    problem.values = result.values
+    result = solve()
+    problem.values = result.values
+    return result
 
 
 def _variance_ratios(problem: Problem, values: Values) -> dict:

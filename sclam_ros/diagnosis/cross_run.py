@@ -62,7 +62,7 @@ def fit_models(keyframes, params, effect_names=()) -> tuple:
     """(base, extended) fitted on the whole recording as diagnose fits them: the base
     graph solved with variance components, then the mechanical effects added and the
     graph solved again from there. Without mechanical effects both are the base."""
-    result = calibrate_keyframes(keyframes, params)
+    result = calibrate_keyframes(keyframes, params, correct_dilution=False)  # as diagnose
     base = _carried_over(result.problem.values, (), result.problem.scales)
     names = mechanical(effect_names)
     if not names:

@@ -135,7 +135,8 @@ def _subset(inputs, keep_pose_edges):
 
 def _fit_base(inputs, params, nominal, observability, poses=None) -> Fit:
     """The base model on `inputs`, with the full run's undetermined directions locked."""
-    problem = graph_mod.build_problem(inputs, params, nominal, poses=poses)
+    problem = graph_mod.build_problem(inputs, params, nominal, poses=poses,
+                                      correct_dilution=False)
     problem.factors.extend(observability.lock(nominal))
     result, scales = solve_with_variance_components(problem)
     return Fit(problem, result.values, scales, result.final_cost)
@@ -599,7 +600,10 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
     say = progress or (lambda message: None)
     names = list(effect_names or DEFAULT_CANDIDATES)
     say("fitting the base model")
-    base_result = calibrate_keyframes(keyframes, params)
+    # Without the wheel noise's dilution correction (core/dilution.py): models are compared
+    # by their likelihood, which its linear cost term is not, and the term is derived for
+    # the stated wheel noise, not for the noise effects that rescale it.
+    base_result = calibrate_keyframes(keyframes, params, correct_dilution=False)
     merged = graph_mod.merge_keyframes(keyframes, params.keyframe_interval)
     inputs = base_result.inputs
     problem = base_result.problem

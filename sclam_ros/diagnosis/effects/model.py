@@ -151,7 +151,7 @@ def extend_problem(problem: Problem, effects, initial=None) -> Problem:
             e.name, [0], [np.zeros(e.dim)], np.eye(e.dim) * e.prior_sigma ** -2.0,
             angular=(False,) * e.dim, name="effect_prior"))
     return Problem(values, new_factors, fixed=problem.fixed, kernels=problem.kernels,
-                   scales=problem.scales)
+                   scales=problem.scales, corrections=problem.corrections)
 
 
 def build_problem(inputs, params, calibration, effects=(), poses=None, nominal=None) -> Problem:

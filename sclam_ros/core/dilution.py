@@ -1,0 +1,119 @@
+"""The wheel base's regression dilution, taken out of the cost (a corrected score).
+
+The wheel base is learned from the heading change against the wheel angles: θ = (r_r u_r −
+r_l u_l)/b. The angles are measured with noise C_u (slip, quantisation, interpolation), so
+at the true k an odometry edge's expected squared rotation residual is its value at the true
+angles plus D(k) = (K_θu C_u(k) K_θuᵀ)/σ²_θ, and D falls as b grows (K_θu = (−r_l, r_r)/b).
+Least squares follows D to a wheel base too large by ≈ Σ noise² / Σ signal² (the regression
+dilution graph.merge_keyframes describes): measured on the simulator with the scan matches
+replaced by the true motion (bench/outdoor_noise_roles.py), +0.23 % outdoors and +0.03 %
+indoors with 0.5 s edges, and gone with the slip noise off.
+
+The correction subtracts D's slope from the cost, −s·(k − k₀) (Nakamura 1990, corrected
+score). Three choices, each measured:
+
+- Only the rotation row. The translation's dilution is the same effect on the radii, but
+  there the signal is large (noise²/signal² ≈ q²/|u| ≈ 10⁻⁴ per edge): with the matches
+  replaced by the true motion the radii came out within 0.03 % without it, and a full-trace
+  correction moved them by +0.06 % (outdoors, 40 seeds) through the laser pose's coupling.
+- Per edge, the share of its noise the poses do not absorb. The expected residual is D only
+  where something else fixes the poses' rotation: an edge whose poses are joined by a scan
+  match keeps σ²_O / (σ²_O + σ²_L) of it (σ²_O, σ²_L the odometry and laser edges' rotation
+  variances, each times its variance scale); an edge no scan match spans keeps none (the
+  poses follow the wheels). Without this share the correction overshot outdoors, where
+  matches fail in stretches: the solution's rotation residuals were 0.17-0.21 of the noise
+  model against 0.37 for the simulator's slip.
+- Linear in k, slope evaluated once at the start: D changes by its own O(σ²) share over the
+  few per cent k moves. And with the weights fixed there is no way to lower the cost by
+  inflating a covariance, which is why letting the information follow k was rejected
+  (factors.OdometryFactor).
+
+Its size does not depend on the odometry's variance scale (Ω/scale times C_u·scale), only on
+the wheel-noise model's shape and on the share above.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sclam_ros.core import kinematics
+from sclam_ros.core.params import CALIBRATION_KEYS
+
+
+# The correction is first order in noise²/signal²: applied where it moves no calibration
+# parameter by more than this fraction of its value. Measured: 0.03-0.5 % on the
+# simulator's drives, 0.04-0.1 % on the OptiOdom square runs; 15-25 % of the wheel base on
+# its circular runs, where constant curvature leaves b weakly determined (σ 4-8 %) and the
+# uncorrected b (196-211 mm) agrees with the square runs' (200-204 mm): there the
+# residuals are not the wheel noise the correction assumes.
+MAX_RELATIVE_SHIFT = 0.01
+
+
+class WheelNoiseCorrection:
+    """−Σᵢ wᵢ ∂Dᵢ/∂k · (k − k₀) over the "odometry" block, wᵢ the unabsorbed share.
+
+    `active` is cleared (solver.settle_corrections) where the correction would move a
+    parameter by more than MAX_RELATIVE_SHIFT; `shift` holds the move it makes or would
+    make (m), so that a result can say how much dilution it left in."""
+
+    block = "odometry"
+    active = True
+    shift = None
+
+    def holds(self, shift, values) -> bool:
+        return bool(np.all(np.abs(shift) <= MAX_RELATIVE_SHIFT * np.abs(values[self.block][0])))
+
+    def __init__(self, k0, edge_slopes, odometry_variance, laser_variance):
+        """edge_slopes (m, 3): ∂Dᵢ/∂k at k₀; odometry_variance (m,), laser_variance (m,): the
+        rotation variances of each odometry edge and of the scan match joining the same two
+        poses (inf where none does)."""
+        self.k0 = np.asarray(k0, float)
+        self.edge_slopes = np.asarray(edge_slopes, float).reshape(-1, 3)
+        self.odometry_variance = np.asarray(odometry_variance, float)
+        self.laser_variance = np.asarray(laser_variance, float)
+
+    def slope(self, scales) -> np.ndarray:
+        odometry = scales.get("odometry", 1.0) * self.odometry_variance
+        laser = scales.get("laser", 1.0) * self.laser_variance
+        with np.errstate(invalid="ignore"):
+            share = np.where(np.isfinite(laser), odometry / (odometry + laser), 0.0)
+        return share @ self.edge_slopes
+
+    def term(self, values, scales):
+        """(cost, ∂cost/∂k): the correction at `values` under the variance `scales`."""
+        slope = self.slope(scales)
+        return -float(slope @ (values[self.block][0] - self.k0)), -slope
+
+
+def wheel_noise_correction(inputs, params, k, odometry_covariance, encoder_floor):
+    """The correction for a graph's edges (graph.GraphInputs) at calibration k, with the
+    odometry edges' covariance `odometry_covariance` (m, 3, 3) the factor uses."""
+    k = np.asarray(k, float)
+    odometry_variance = odometry_covariance[:, 2, 2]
+
+    def rotation_noise(k_at):
+        cov = kinematics.wheel_angle_covariance(inputs.odo_dphi, k_at, params.wheel_noise,
+                                                encoder_floor, inputs.odo_variance,
+                                                parts=inputs.odo_parts)
+        return cov[:, 2, 2] / odometry_variance
+
+    slopes = np.zeros((len(odometry_variance), 3))
+    for j in range(3):
+        step = np.zeros(3)
+        step[j] = 1e-6 * k[j]
+        slopes[:, j] = (rotation_noise(k + step) - rotation_noise(k - step)) / (2.0 * step[j])
+    consecutive = inputs.laser_to == inputs.laser_from + 1
+    laser_rotation = np.linalg.inv(inputs.laser_info[consecutive])[:, 2, 2]
+    by_start = dict(zip(inputs.laser_from[consecutive].tolist(), laser_rotation.tolist()))
+    laser_variance = np.array([by_start.get(i, np.inf) for i in inputs.odo_from.tolist()])
+    return WheelNoiseCorrection(k, slopes, odometry_variance, laser_variance)
+
+
+def summary(problem, values):
+    """{"applied": bool, "shift_percent": {r_l, r_r, b}} of a solved problem's correction
+    (how far it moved k, or would have where it was not applied), or None without one."""
+    found = [c for c in problem.corrections if isinstance(c, WheelNoiseCorrection)]
+    if not found or found[0].shift is None:
+        return None
+    shift = 100.0 * found[0].shift / values["odometry"][0]
+    return {"applied": bool(found[0].active),
+            "shift_percent": dict(zip(CALIBRATION_KEYS[:3], map(float, shift)))}
