@@ -61,6 +61,9 @@ def test_a_correction_moves_the_minimum_by_minus_its_gradient_through_h():
         def holds(self, shift, values):
             return True
 
+        def observe(self, system, lu):
+            pass
+
     information = np.diag([4.0, 9.0, 16.0])
     prior = factors.PriorFactor("odometry", [0], [np.zeros(3)], information,
                                 angular=(False, False, False))

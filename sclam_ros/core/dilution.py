@@ -5,31 +5,38 @@ r_l u_l)/b. The angles are measured with noise C_u (slip, quantisation, interpol
 at the true k an odometry edge's expected squared rotation residual is its value at the true
 angles plus D(k) = (K_θu C_u(k) K_θuᵀ)/σ²_θ, and D falls as b grows (K_θu = (−r_l, r_r)/b).
 Least squares follows D to a wheel base too large by ≈ Σ noise² / Σ signal² (the regression
-dilution graph.merge_keyframes describes): measured on the simulator with the scan matches
-replaced by the true motion (bench/outdoor_noise_roles.py), +0.23 % outdoors and +0.03 %
-indoors with 0.5 s edges, and gone with the slip noise off.
+dilution graph.merge_keyframes describes); bench/dilution.py measures it and what the
+correction leaves on graphs drawn from the model itself, and bench/outdoor_noise_roles.py
+on the simulator outdoors (the scan matches, then also the wheel increments, replaced by
+the truth).
 
 The correction subtracts D's slope from the cost, −s·(k − k₀) (Nakamura 1990, corrected
 score). Three choices, each measured:
 
 - Only the rotation row. The translation's dilution is the same effect on the radii, but
   there the signal is large (noise²/signal² ≈ q²/|u| ≈ 10⁻⁴ per edge): with the matches
-  replaced by the true motion the radii came out within 0.03 % without it, and a full-trace
-  correction moved them by +0.06 % (outdoors, 40 seeds) through the laser pose's coupling.
+  replaced by the true motion the radii came out within 0.03 % without it, and a correction
+  over all three rows moved them by +0.06 % (outdoors, 40 seeds, ad hoc).
 - Per edge, the share of its noise the poses do not absorb. The expected residual is D only
   where something else fixes the poses' rotation: an edge whose poses are joined by a scan
   match keeps σ²_O / (σ²_O + σ²_L) of it (σ²_O, σ²_L the odometry and laser edges' rotation
   variances, each times its variance scale); an edge no scan match spans keeps none (the
   poses follow the wheels). Without this share the correction overshot outdoors, where
-  matches fail in stretches: the solution's rotation residuals were 0.17-0.21 of the noise
-  model against 0.37 for the simulator's slip.
+  matches fail in stretches (ad hoc: the solution's rotation residuals were 0.17-0.21 of the
+  noise model where the simulator's slip is 0.37 of it).
 - Linear in k, slope evaluated once at the start: D changes by its own O(σ²) share over the
   few per cent k moves. And with the weights fixed there is no way to lower the cost by
   inflating a covariance, which is why letting the information follow k was rejected
   (factors.OdometryFactor).
 
-Its size does not depend on the odometry's variance scale (Ω/scale times C_u·scale), only on
-the wheel-noise model's shape and on the share above.
+- The noise level from the data. The term is tr(Ω/scale · C_actual), with the wheel noise
+  C_actual = scale · C_u when the odometry's variance scale (solver.solve_with_variance_
+  components) is right; then the scale cancels. The scale is estimated from all three
+  residual rows and can stop short of a small noise (a clamped round: the simulator without
+  slip left it at 0.2 where its rotation residuals were 10⁻⁴ of the model, and the
+  correction moved b by −0.16 %). So the rotation rows are asked too: their own variance
+  factor (χ² over redundancy, at the solution, under the scale) is the level the correction
+  is taken at where it is below 1.
 """
 from __future__ import annotations
 
@@ -58,9 +65,29 @@ class WheelNoiseCorrection:
     block = "odometry"
     active = True
     shift = None
+    # The share of the stated wheel noise (under the odometry's variance scale) that the
+    # rotation residuals show: observe() sets it.
+    level = 1.0
 
     def holds(self, shift, values) -> bool:
         return bool(np.all(np.abs(shift) <= MAX_RELATIVE_SHIFT * np.abs(values[self.block][0])))
+
+    def observe(self, system, lu, probes: int = 40, seed: int = 0) -> None:
+        """`level` from the odometry edges' rotation rows of the linear system at the
+        solution (`system`, its factorisation `lu`): their whitened χ² over their
+        redundancy (the share of them the poses do not absorb, by Hutchinson's trace
+        estimate as solver.redundancy_by_factor), at most 1."""
+        ranges = [(start, stop) for name, start, stop in system.row_ranges if name == "odometry"]
+        if len(ranges) != 1 or (ranges[0][1] - ranges[0][0]) != 3 * len(self.edge_slopes):
+            return
+        rows = np.arange(ranges[0][0] + 2, ranges[0][1], 3)  # the rotation component
+        rotation = system.jacobian[rows]
+        probe = np.random.default_rng(seed).choice([-1.0, 1.0], size=(rotation.shape[1], probes))
+        absorbed = float(np.mean(np.sum((rotation @ lu.solve(probe)) * (rotation @ probe), axis=0)))
+        redundancy = len(rows) - absorbed
+        if redundancy > 0:
+            chi2 = float(system.residual[rows] @ system.residual[rows])
+            self.level = min(1.0, chi2 / redundancy)
 
     def __init__(self, k0, edge_slopes, odometry_variance, laser_variance):
         """edge_slopes (m, 3): ∂Dᵢ/∂k at k₀; odometry_variance (m,), laser_variance (m,): the
@@ -71,12 +98,15 @@ class WheelNoiseCorrection:
         self.odometry_variance = np.asarray(odometry_variance, float)
         self.laser_variance = np.asarray(laser_variance, float)
 
-    def slope(self, scales) -> np.ndarray:
+    def _share(self, scales) -> np.ndarray:
+        """Per edge, the share of its rotation noise the poses do not absorb."""
         odometry = scales.get("odometry", 1.0) * self.odometry_variance
         laser = scales.get("laser", 1.0) * self.laser_variance
         with np.errstate(invalid="ignore"):
-            share = np.where(np.isfinite(laser), odometry / (odometry + laser), 0.0)
-        return share @ self.edge_slopes
+            return np.where(np.isfinite(laser), odometry / (odometry + laser), 0.0)
+
+    def slope(self, scales) -> np.ndarray:
+        return self.level * (self._share(scales) @ self.edge_slopes)
 
     def term(self, values, scales):
         """(cost, ∂cost/∂k): the correction at `values` under the variance `scales`."""

@@ -571,16 +571,20 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
 
 
 def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverResult:
-    """Each active correction's move of the solution, −H⁻¹ (½ its gradient) over its block,
+    """Each active correction, told the linear system at the solution (correction.observe:
+    what the residuals say of its size), and its move of the solution, −H⁻¹ (½ its gradient) over its block,
     kept in `correction.shift`; those that do not hold at that size (correction.holds) are
-    deactivated and the problem solved again with `solve()`. Returns the final result."""
+    deactivated. Where any changed, the problem is solved again with `solve()`. Returns the
+    final result."""
     if not any(c.active for c in problem.corrections):
         return result
-    _, _, lu = factorize_information(problem, result.values, result.system)
-    dropped = False
+    system, _, lu = factorize_information(problem, result.values, result.system)
+    changed = False
     for correction in problem.corrections:
         if not correction.active:
             continue
+        before = correction.term(result.values, problem.scales)[1]
+        correction.observe(system, lu)
         _, gradient = correction.term(result.values, problem.scales)
         first = problem.layout.column_of_row[correction.block][0]
         if first < 0:  # its block is held: it moves nothing
@@ -589,9 +593,10 @@ def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverR
         offset = np.zeros(problem.layout.size)
         offset[first:first + len(gradient)] = 0.5 * np.asarray(gradient)
         correction.shift = -lu.solve(offset)[first:first + len(gradient)]
+        changed |= not np.allclose(gradient, before, rtol=1e-3, atol=0.0)
         if not correction.holds(correction.shift, result.values):
-            correction.active, dropped = False, True
-    if not dropped:
+            correction.active, changed = False, True
+    if not changed:
         return result
     problem.values = result.values
     result = solve()
