@@ -47,11 +47,11 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 
 
 # The correction is first order in noise²/signal²: applied where it moves no calibration
-# parameter by more than this fraction of its value. Measured: 0.03-0.5 % on the
-# simulator's drives, 0.04-0.1 % on the OptiOdom square runs; 15-25 % of the wheel base on
-# its circular runs, where constant curvature leaves b weakly determined (σ 4-8 %) and the
-# uncorrected b (196-211 mm) agrees with the square runs' (200-204 mm): there the
-# residuals are not the wheel noise the correction assumes.
+# parameter by more than this fraction of its value. bench/optiodom_repeatability.py: it
+# moves b by 0.04-0.11 % on the OptiOdom square runs and would by 13-23 % on the circular
+# runs, where constant curvature leaves b weakly determined (σ 6-8 %) and the uncorrected b
+# (197-210 mm) agrees with the square runs' (200-204 mm): there the residuals are not the
+# wheel noise the correction assumes.
 MAX_RELATIVE_SHIFT = 0.01
 
 

@@ -88,8 +88,9 @@ class OdometryFactor(Factor):
     errors-in-variables form) removes regression dilution in simulation but, on real runs
     with a model misfit and weak excitation, pulls the estimate along the weakly
     determined direction (OptiOdom circular runs: b 0.09-0.13 m against 0.20 m from the
-    square runs of the same robot). The dilution is kept small instead by long edges:
-    see graph.merge_keyframes.
+    square runs of the same robot): a k that inflates the edges' covariance lowers their
+    cost. The dilution is kept small by long edges (graph.merge_keyframes) and corrected
+    in the batch cost with the weights fixed (dilution.py).
     """
 
     name = "odometry"
