@@ -69,6 +69,15 @@ class WheelNoiseCorrection:
     # rotation residuals show: observe() sets it.
     level = 1.0
 
+    def __init__(self, k0, edge_slopes, odometry_variance, laser_variance):
+        """edge_slopes (m, 3): ∂Dᵢ/∂k at k₀; odometry_variance (m,), laser_variance (m,): the
+        rotation variances of each odometry edge and of the scan match joining the same two
+        poses (inf where none does)."""
+        self.k0 = np.asarray(k0, float)
+        self.edge_slopes = np.asarray(edge_slopes, float).reshape(-1, 3)
+        self.odometry_variance = np.asarray(odometry_variance, float)
+        self.laser_variance = np.asarray(laser_variance, float)
+
     def holds(self, shift, values) -> bool:
         return bool(np.all(np.abs(shift) <= MAX_RELATIVE_SHIFT * np.abs(values[self.block][0])))
 
@@ -88,15 +97,6 @@ class WheelNoiseCorrection:
         if redundancy > 0:
             chi2 = float(system.residual[rows] @ system.residual[rows])
             self.level = min(1.0, chi2 / redundancy)
-
-    def __init__(self, k0, edge_slopes, odometry_variance, laser_variance):
-        """edge_slopes (m, 3): ∂Dᵢ/∂k at k₀; odometry_variance (m,), laser_variance (m,): the
-        rotation variances of each odometry edge and of the scan match joining the same two
-        poses (inf where none does)."""
-        self.k0 = np.asarray(k0, float)
-        self.edge_slopes = np.asarray(edge_slopes, float).reshape(-1, 3)
-        self.odometry_variance = np.asarray(odometry_variance, float)
-        self.laser_variance = np.asarray(laser_variance, float)
 
     def _share(self, scales) -> np.ndarray:
         """Per edge, the share of its rotation noise the poses do not absorb."""
