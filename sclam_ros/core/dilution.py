@@ -53,6 +53,8 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 # (197-210 mm) agrees with the square runs' (200-204 mm): there the residuals are not the
 # wheel noise the correction assumes.
 MAX_RELATIVE_SHIFT = 0.01
+# Rows per solve of the exact trace in WheelNoiseCorrection.observe (bounds its memory).
+TRACE_CHUNK = 256
 
 
 class WheelNoiseCorrection:
@@ -81,18 +83,23 @@ class WheelNoiseCorrection:
     def holds(self, shift, values) -> bool:
         return bool(np.all(np.abs(shift) <= MAX_RELATIVE_SHIFT * np.abs(values[self.block][0])))
 
-    def observe(self, system, lu, probes: int = 40, seed: int = 0) -> None:
+    def observe(self, system, lu) -> None:
         """`level` from the odometry edges' rotation rows of the linear system at the
         solution (`system`, its factorisation `lu`): their whitened χ² over their
-        redundancy (the share of them the poses do not absorb, by Hutchinson's trace
-        estimate as solver.redundancy_by_factor), at most 1."""
+        redundancy (the rows less the share the poses absorb, tr(J H⁻¹ Jᵀ) over those
+        rows), at most 1. The trace is exact, from solves in chunks of rows: Hutchinson's
+        estimate (as solver.redundancy_by_factor's) scattered from −1054 to +707 against
+        exact values of 16-239 on outdoor drives of 210-340 rows."""
         ranges = [(start, stop) for name, start, stop in system.row_ranges if name == "odometry"]
         if len(ranges) != 1 or (ranges[0][1] - ranges[0][0]) != 3 * len(self.edge_slopes):
             return
         rows = np.arange(ranges[0][0] + 2, ranges[0][1], 3)  # the rotation component
         rotation = system.jacobian[rows]
-        probe = np.random.default_rng(seed).choice([-1.0, 1.0], size=(rotation.shape[1], probes))
-        absorbed = float(np.mean(np.sum((rotation @ lu.solve(probe)) * (rotation @ probe), axis=0)))
+        absorbed = 0.0
+        for start in range(0, len(rows), TRACE_CHUNK):
+            chunk = rotation[start:start + TRACE_CHUNK]
+            chunk = chunk.toarray() if hasattr(chunk, "toarray") else np.asarray(chunk)
+            absorbed += float(np.sum(chunk * lu.solve(chunk.T).T))
         redundancy = len(rows) - absorbed
         if redundancy > 0:
             chi2 = float(system.residual[rows] @ system.residual[rows])
