@@ -77,7 +77,7 @@ def test_a_correction_moves_the_minimum_by_minus_its_gradient_through_h():
 @pytest.mark.parametrize("shape, applied", [("circular", False), ("square", True)])
 def test_on_the_optiodom_robot_the_correction_is_applied_only_where_the_drive_determines_b(
         shape, applied):
-    """Square runs: a small correction (b by −0.04 to −0.11 %). Circular runs: constant
+    """Square runs: a small correction (b by −0.04 to −0.10 %). Circular runs: constant
     curvature leaves b weakly determined, the first-order correction would move it by
     13-23 %, and it is not applied; b then agrees with the square runs' 200-204 mm."""
     run = sorted((DATA / shape).glob("*/*_run-??.csv"))[0]

@@ -48,7 +48,7 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 
 # The correction is first order in noise²/signal²: applied where it moves no calibration
 # parameter by more than this fraction of its value. bench/optiodom_repeatability.py: it
-# moves b by 0.04-0.11 % on the OptiOdom square runs and would by 13-23 % on the circular
+# moves b by 0.04-0.10 % on the OptiOdom square runs and would by 13-23 % on the circular
 # runs, where constant curvature leaves b weakly determined (σ 6-8 %) and the uncorrected b
 # (197-210 mm) agrees with the square runs' (200-204 mm): there the residuals are not the
 # wheel noise the correction assumes.
