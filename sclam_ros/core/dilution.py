@@ -11,7 +11,7 @@ on the simulator outdoors (the scan matches, then also the wheel increments, rep
 the truth).
 
 The correction subtracts D's slope from the cost, −s·(k − k₀) (Nakamura 1990, corrected
-score). Three choices, each measured:
+score). Four choices, each measured:
 
 - Only the rotation row. The translation's dilution is the same effect on the radii, but
   there the signal is large (noise²/signal² ≈ q²/|u| ≈ 10⁻⁴ per edge): with the matches
@@ -28,7 +28,6 @@ score). Three choices, each measured:
   few per cent k moves. And with the weights fixed there is no way to lower the cost by
   inflating a covariance, which is why letting the information follow k was rejected
   (factors.OdometryFactor).
-
 - The noise level from the data. The term is tr(Ω/scale · C_actual), with the wheel noise
   C_actual = scale · C_u when the odometry's variance scale (solver.solve_with_variance_
   components) is right; then the scale cancels. The scale is estimated from all three

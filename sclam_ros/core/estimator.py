@@ -75,7 +75,6 @@ class CalibrationResult:
         return out
 
 
-
 def _at_least(model, sandwich):
     """The model covariance, scaled up per parameter where the sandwich σ is larger.
 

@@ -263,11 +263,20 @@ class Problem:
                 continue
             cost, gradient = correction.term(values, self.scales)
             total += cost
-            first = self.layout.column_of_row[correction.block][0]
-            if first >= 0:
-                offset = np.zeros(self.layout.size) if offset is None else offset
-                offset[first:first + len(gradient)] += 0.5 * np.asarray(gradient)
+            part = self.correction_offset(correction, gradient)
+            if part is not None:
+                offset = part if offset is None else offset + part
         return total, offset
+
+    def correction_offset(self, correction, gradient) -> Optional[np.ndarray]:
+        """½ `gradient` at the columns of the correction's block (its first row), zero
+        elsewhere; None where that row is held."""
+        first = self.layout.column_of_row[correction.block][0]
+        if first < 0:
+            return None
+        offset = np.zeros(self.layout.size)
+        offset[first:first + len(gradient)] = 0.5 * np.asarray(gradient)
+        return offset
 
     def cost(self, values: Values) -> float:
         total = 0.0
@@ -572,9 +581,9 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
 
 def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverResult:
     """Each active correction, told the linear system at the solution (correction.observe:
-    what the residuals say of its size), and its move of the solution, −H⁻¹ (½ its gradient) over its block,
-    kept in `correction.shift`; those that do not hold at that size (correction.holds) are
-    deactivated. Where any changed, the problem is solved again with `solve()`. Returns the
+    what the residuals say of its size), and its move of the solution, −H⁻¹ (½ its
+    gradient) over its block, kept in `correction.shift`; those that do not hold at that
+    size (correction.holds) are deactivated. Where any changed, the problem is solved again with `solve()`. Returns the
     final result."""
     if not any(c.active for c in problem.corrections):
         return result
@@ -586,13 +595,11 @@ def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverR
         before = correction.term(result.values, problem.scales)[1]
         correction.observe(system, lu)
         _, gradient = correction.term(result.values, problem.scales)
-        first = problem.layout.column_of_row[correction.block][0]
-        if first < 0:  # its block is held: it moves nothing
+        offset = problem.correction_offset(correction, gradient)
+        if offset is None:  # its block is held: it moves nothing
             correction.shift = np.zeros(len(gradient))
             continue
-        offset = np.zeros(problem.layout.size)
-        offset[first:first + len(gradient)] = 0.5 * np.asarray(gradient)
-        correction.shift = -lu.solve(offset)[first:first + len(gradient)]
+        correction.shift = -lu.solve(offset)[problem.layout.columns(correction.block)]
         changed |= not np.allclose(gradient, before, rtol=1e-3, atol=0.0)
         if not correction.holds(correction.shift, result.values):
             correction.active, changed = False, True
