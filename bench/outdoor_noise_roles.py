@@ -34,7 +34,23 @@ the noise-free returns of the same scan in one role at a time:
     such against noise that took part in those choices;
   - reference anchors with their noise mirrored: the anchors' recorded noise with its sign
     turned (noise-free return − recorded noise): a bias even in the noise stays, one made
-    by the choices the noise took part in turns.
+    by the choices the noise took part in turns;
+  - reference lines fitted to the noise-free returns: each kept return's normal from its
+    noise-free neighbourhood (returns, anchors and which are kept as recorded);
+  - reference returns kept by the noise-free returns' tests: which returns get a line
+    decided on the noise-free scan (their returns, anchors and normals as recorded);
+  - new scan with fresh noise: the refined scan's points noise-free, then moved along
+    their beams by a new draw of the range noise (KISS-ICP gets the recorded scan, and the
+    scan is the next match's reference as recorded): whether the bias needs the same
+    scan's noise on both sides, as the new scan of one match and the reference of the
+    next;
+  - refinement started at the true motion: from the truth instead of KISS-ICP's answer
+    (still confirmed against KISS-ICP's answer), which KISS-ICP found with the same
+    reference returns in its map;
+  - refinement confirmed against the true motion: a refinement (from KISS-ICP's answer)
+    is used where it lies within MAX_CORRECTION of the truth instead of KISS-ICP's answer:
+    which matches are used no longer depends on whether two answers sharing the
+    reference's noise agree.
 
 Mean error of r_l r_r b (%, ± standard error over the seeds), of the laser yaw, and of the
 laser x with the RMS of its error over its reported σ (where the turns see the mount).
@@ -64,7 +80,11 @@ VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference anchors noise-free", "pairing at the true motion",
             "matches = the true motion", "matches mirrored about the truth",
             "pairs gated along the line", "matches and wheel increments = the truth",
-            "reference anchors with fresh noise", "reference anchors with their noise mirrored")
+            "reference anchors with fresh noise", "reference anchors with their noise mirrored",
+            "reference lines fitted to the noise-free returns",
+            "reference returns kept by the noise-free returns' tests",
+            "new scan with fresh noise", "refinement started at the true motion",
+            "refinement confirmed against the true motion")
 TRUE_MATCHES = (VARIANTS[5], VARIANTS[8])
 ALONG_REACH = 0.6  # × the beams' spacing on the surface at the anchor
 ALONG_CAP = 1.0  # m
@@ -165,6 +185,23 @@ def _refined(q, z0, pairs, reference):
     return z, int(np.count_nonzero(used)), scale**2 * np.linalg.inv(hessian)
 
 
+def _kept_as(clean_reference, clean, noisy, usable_range):
+    """A reference of the recorded returns `noisy` (their own anchors, their lines fitted
+    over NORMAL_NEIGHBOURS of them) keeping the returns `clean_reference` (made from the
+    noise-free twin `clean` of the same beams) keeps; None where that is None."""
+    from scipy.spatial import cKDTree
+
+    from sclam_ros.frontend import point_to_line as ptl
+
+    if clean_reference is None:
+        return None
+    kept = cKDTree(clean).query(clean_reference.points)[1]
+    neighbours = cKDTree(noisy).query(noisy, min(ptl.NORMAL_NEIGHBOURS, len(noisy)))[1]
+    normals = ptl._line_fit(noisy, neighbours)[0]
+    return ptl.ReferenceScan(noisy[kept], normals[kept], cKDTree(noisy[kept]), noisy[kept],
+                             usable_range)
+
+
 def _patch(variant, twin):
     """Wrap the front end's functions for `variant` (this worker process only)."""
     from scipy.spatial import cKDTree
@@ -199,7 +236,14 @@ def _patch(variant, twin):
         clean = twin.clean_points[:, :2]
         if variant == VARIANTS[2]:
             return from_points(cls, clean, noise, usable_range, small_objects)
+        if variant == VARIANTS[12]:
+            return _kept_as(from_points(cls, clean, noise, usable_range, small_objects),
+                            clean, np.asarray(points, float)[:, :2], usable_range)
         reference = from_points(cls, points, noise, usable_range, small_objects)
+        if variant == VARIANTS[11] and reference is not None:
+            kept = cKDTree(np.asarray(points, float)[:, :2]).query(reference.points)[1]
+            neighbours = cKDTree(clean).query(clean, min(ptl.NORMAL_NEIGHBOURS, len(clean)))[1]
+            reference.normals = ptl._line_fit(clean, neighbours)[0][kept]
         if variant in (VARIANTS[3], VARIANTS[9], VARIANTS[10]) and reference is not None:
             kept = cKDTree(np.asarray(points, float)[:, :2]).query(reference.points)[1]
             reference.anchors = clean[kept]
@@ -212,8 +256,17 @@ def _patch(variant, twin):
         return reference
 
     def confirmed_with(reference, points, z_icp):
+        if variant in (VARIANTS[14], VARIANTS[15]):
+            z_true = twin.true_motion(*twin.match_stamps)
+            if variant == VARIANTS[14]:
+                return ptl.verdict(reference, *refine(reference, points, z_true), z_icp)
+            return ptl.verdict(reference, *refine(reference, points, z_icp), z_true)
         if variant == VARIANTS[1]:
             points = twin.clean_points
+        elif variant == VARIANTS[13]:
+            clean = twin.clean_points
+            along_beam = clean / np.linalg.norm(clean, axis=1, keepdims=True)
+            points = clean + along_beam * twin.rng.normal(0.0, twin.range_noise, len(clean))[:, None]
         return confirmed(reference, points, z_icp)
 
     def refine_paired_at_truth(reference, points, z0):

@@ -392,11 +392,16 @@ class RefinedScanMatcher:
 def _confirmed(reference, points, z_icp):
     """(refined z, its covariance, None), or (None, None, reason) where the refinement
     cannot confirm z_icp."""
-    refined, used, covariance = refine_with_covariance(reference, points, z_icp)
+    return verdict(reference, *refine_with_covariance(reference, points, z_icp), z_icp)
+
+
+def verdict(reference, refined, used, covariance, against):
+    """_confirmed's answer for a refinement (refine_with_covariance's result) of a match
+    whose own answer was `against`."""
     if not used:
         return None, None, "no_lines" if reference is None else "too_few_pairs"
-    if (math.hypot(*(refined[:2] - z_icp[:2])) > MAX_CORRECTION
-            or abs(se2.wrap_angle(refined[2] - z_icp[2])) > MAX_CORRECTION_ANGLE):
+    if (math.hypot(*(refined[:2] - against[:2])) > MAX_CORRECTION
+            or abs(se2.wrap_angle(refined[2] - against[2])) > MAX_CORRECTION_ANGLE):
         return None, None, "correction_too_large"
     return refined, covariance, None
 
