@@ -50,7 +50,11 @@ the noise-free returns of the same scan in one role at a time:
   - refinement confirmed against the true motion: a refinement (from KISS-ICP's answer)
     is used where it lies within MAX_CORRECTION of the truth instead of KISS-ICP's answer:
     which matches are used no longer depends on whether two answers sharing the
-    reference's noise agree.
+    reference's noise agree;
+  - reference noise-free but its anchors as recorded: which returns are kept, their
+    lines and the pairing all from the noise-free returns, the residuals measured from
+    the recorded returns: the anchors' noise with none of the reference's choices made
+    by it.
 
 Mean error of r_l r_r b (%, ± standard error over the seeds), of the laser yaw, and of the
 laser x with the RMS of its error over its reported σ (where the turns see the mount).
@@ -84,7 +88,8 @@ VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference lines fitted to the noise-free returns",
             "reference returns kept by the noise-free returns' tests",
             "new scan with fresh noise", "refinement started at the true motion",
-            "refinement confirmed against the true motion")
+            "refinement confirmed against the true motion",
+            "reference noise-free but its anchors as recorded")
 TRUE_MATCHES = (VARIANTS[5], VARIANTS[8])
 ALONG_REACH = 0.6  # × the beams' spacing on the surface at the anchor
 ALONG_CAP = 1.0  # m
@@ -236,6 +241,12 @@ def _patch(variant, twin):
         clean = twin.clean_points[:, :2]
         if variant == VARIANTS[2]:
             return from_points(cls, clean, noise, usable_range, small_objects)
+        if variant == VARIANTS[16]:
+            reference = from_points(cls, clean, noise, usable_range, small_objects)
+            if reference is not None:
+                kept = cKDTree(clean).query(reference.points)[1]
+                reference.anchors = np.asarray(points, float)[kept, :2]
+            return reference
         if variant == VARIANTS[12]:
             return _kept_as(from_points(cls, clean, noise, usable_range, small_objects),
                             clean, np.asarray(points, float)[:, :2], usable_range)
