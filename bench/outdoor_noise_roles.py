@@ -54,7 +54,8 @@ the noise-free returns of the same scan in one role at a time:
   - reference noise-free but its anchors as recorded: which returns are kept, their
     lines and the pairing all from the noise-free returns, the residuals measured from
     the recorded returns: the anchors' noise with none of the reference's choices made
-    by it.
+    by it;
+  - both: the last two at once.
 
 Mean error of r_l r_r b (%, ± standard error over the seeds), of the laser yaw, and of the
 laser x with the RMS of its error over its reported σ (where the turns see the mount).
@@ -89,7 +90,8 @@ VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference returns kept by the noise-free returns' tests",
             "new scan with fresh noise", "refinement started at the true motion",
             "refinement confirmed against the true motion",
-            "reference noise-free but its anchors as recorded")
+            "reference noise-free but its anchors as recorded",
+            "both: reference noise-free but its anchors, confirmed against the truth")
 TRUE_MATCHES = (VARIANTS[5], VARIANTS[8])
 ALONG_REACH = 0.6  # × the beams' spacing on the surface at the anchor
 ALONG_CAP = 1.0  # m
@@ -241,7 +243,7 @@ def _patch(variant, twin):
         clean = twin.clean_points[:, :2]
         if variant == VARIANTS[2]:
             return from_points(cls, clean, noise, usable_range, small_objects)
-        if variant == VARIANTS[16]:
+        if variant in (VARIANTS[16], VARIANTS[17]):
             reference = from_points(cls, clean, noise, usable_range, small_objects)
             if reference is not None:
                 kept = cKDTree(clean).query(reference.points)[1]
@@ -267,7 +269,7 @@ def _patch(variant, twin):
         return reference
 
     def confirmed_with(reference, points, z_icp):
-        if variant in (VARIANTS[14], VARIANTS[15]):
+        if variant in (VARIANTS[14], VARIANTS[15], VARIANTS[17]):
             z_true = twin.true_motion(*twin.match_stamps)
             if variant == VARIANTS[14]:
                 return ptl.verdict(reference, *refine(reference, points, z_true), z_icp)
