@@ -130,6 +130,12 @@ class _Twin:
         self.rng = np.random.default_rng(int(truth["seed"]))  # fresh range noise
         self.range_noise = float(truth["sensors"]["range_noise"])  # m, 1σ
 
+    def with_fresh_noise(self, points):
+        """`points` (noise-free, laser frame) moved along their beams by a new draw of the
+        recording's range noise."""
+        along_beam = points / np.linalg.norm(points, axis=1, keepdims=True)
+        return points + along_beam * self.rng.normal(0.0, self.range_noise, len(points))[:, None]
+
     def points_of(self, scan, min_range, max_range):
         """The noise-free twin of scan_to_points(scan, min_range, max_range)."""
         from sclam_ros.frontend.scan_matching import valid_beams
@@ -197,6 +203,17 @@ def _refined(q, z0, pairs, reference):
     return z, int(np.count_nonzero(used)), scale**2 * np.linalg.inv(hessian)
 
 
+def _line_normals(points):
+    """(N, 2) each return's normal as ReferenceScan.from_points fits it on a low-noise laser
+    (the line through its NORMAL_NEIGHBOURS nearest returns)."""
+    from scipy.spatial import cKDTree
+
+    from sclam_ros.frontend import point_to_line as ptl
+
+    neighbours = cKDTree(points).query(points, min(ptl.NORMAL_NEIGHBOURS, len(points)))[1]
+    return ptl._line_fit(points, neighbours)[0]
+
+
 def _kept_as(clean_reference, clean, noisy, usable_range):
     """A reference of the recorded returns `noisy` (their own anchors, their lines fitted
     over NORMAL_NEIGHBOURS of them) keeping the returns `clean_reference` (made from the
@@ -208,10 +225,8 @@ def _kept_as(clean_reference, clean, noisy, usable_range):
     if clean_reference is None:
         return None
     kept = cKDTree(clean).query(clean_reference.points)[1]
-    neighbours = cKDTree(noisy).query(noisy, min(ptl.NORMAL_NEIGHBOURS, len(noisy)))[1]
-    normals = ptl._line_fit(noisy, neighbours)[0]
-    return ptl.ReferenceScan(noisy[kept], normals[kept], cKDTree(noisy[kept]), noisy[kept],
-                             usable_range)
+    return ptl.ReferenceScan(noisy[kept], _line_normals(noisy)[kept], cKDTree(noisy[kept]),
+                             noisy[kept], usable_range)
 
 
 def _patch(variant, twin):
@@ -259,37 +274,37 @@ def _patch(variant, twin):
             return _kept_as(from_points(cls, clean, noise, usable_range, small_objects),
                             clean, np.asarray(points, float)[:, :2], usable_range)
         reference = from_points(cls, points, noise, usable_range, small_objects)
-        if variant == VARIANTS[11] and reference is not None:
-            kept = cKDTree(np.asarray(points, float)[:, :2]).query(reference.points)[1]
-            neighbours = cKDTree(clean).query(clean, min(ptl.NORMAL_NEIGHBOURS, len(clean)))[1]
-            reference.normals = ptl._line_fit(clean, neighbours)[0][kept]
-        if variant in (VARIANTS[3], VARIANTS[9], VARIANTS[10]) and reference is not None:
-            kept = cKDTree(np.asarray(points, float)[:, :2]).query(reference.points)[1]
+        if reference is None or variant not in (VARIANTS[3], VARIANTS[9], VARIANTS[10],
+                                                VARIANTS[11]):
+            return reference
+        kept = cKDTree(np.asarray(points, float)[:, :2]).query(reference.points)[1]
+        if variant == VARIANTS[11]:
+            reference.normals = _line_normals(clean)[kept]
+        elif variant == VARIANTS[9]:
+            reference.anchors = twin.with_fresh_noise(clean[kept])
+        elif variant == VARIANTS[10]:
+            reference.anchors = 2.0 * clean[kept] - reference.points
+        else:
             reference.anchors = clean[kept]
-            if variant == VARIANTS[9]:
-                along_beam = clean[kept] / np.hypot(*clean[kept].T)[:, None]
-                reference.anchors = clean[kept] + along_beam * twin.rng.normal(
-                    0.0, twin.range_noise, len(kept))[:, None]
-            elif variant == VARIANTS[10]:
-                reference.anchors = 2.0 * clean[kept] - reference.points
         return reference
 
     def confirmed_with(reference, points, z_icp):
-        if variant in (VARIANTS[14], VARIANTS[15], VARIANTS[17]):
-            z_true = twin.true_motion(*twin.match_stamps)
-            if variant == VARIANTS[14]:
-                return ptl.verdict(reference, *refine(reference, points, z_true), z_icp)
-            return ptl.verdict(reference, *refine(reference, points, z_icp), z_true)
-        if variant == VARIANTS[18]:
-            against = z_icp if twin.guess is None else np.asarray(twin.guess, float)
-            return ptl.verdict(reference, *refine(reference, points, z_icp), against)
-        if variant == VARIANTS[1]:
+        # Where the refinement starts and what its answer is judged against (_confirmed:
+        # both KISS-ICP's answer).
+        start = against = z_icp
+        if variant == VARIANTS[14]:
+            start = twin.true_motion(*twin.match_stamps)
+        elif variant in (VARIANTS[15], VARIANTS[17]):
+            against = twin.true_motion(*twin.match_stamps)
+        elif variant == VARIANTS[18] and twin.guess is not None:
+            against = np.asarray(twin.guess, float)
+        elif variant == VARIANTS[1]:
             points = twin.clean_points
         elif variant == VARIANTS[13]:
-            clean = twin.clean_points
-            along_beam = clean / np.linalg.norm(clean, axis=1, keepdims=True)
-            points = clean + along_beam * twin.rng.normal(0.0, twin.range_noise, len(clean))[:, None]
-        return confirmed(reference, points, z_icp)
+            points = twin.with_fresh_noise(twin.clean_points)
+        if start is z_icp and against is z_icp:
+            return confirmed(reference, points, z_icp)
+        return ptl.verdict(reference, *refine(reference, points, start), against)
 
     def refine_paired_at_truth(reference, points, z0):
         """refine_with_covariance with each point's line chosen once, at the true motion."""

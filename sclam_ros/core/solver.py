@@ -583,8 +583,8 @@ def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverR
     """Each active correction, told the linear system at the solution (correction.observe:
     what the residuals say of its size), and its move of the solution, −H⁻¹ (½ its
     gradient) over its block, kept in `correction.shift`; those that do not hold at that
-    size (correction.holds) are deactivated. Where any changed, the problem is solved again with `solve()`. Returns the
-    final result."""
+    size (correction.holds) are deactivated. Where any changed, the problem is solved
+    again with `solve()`. Returns the final result."""
     if not any(c.active for c in problem.corrections):
         return result
     system, _, lu = factorize_information(problem, result.values, result.system)
