@@ -1,4 +1,4 @@
-"""Where the outdoor row's bias comes from: the front end's range noise, the wheels' slip.
+"""Where the outdoor row's bias comes from (or another sensor-matrix row's): the range noise.
 
 The sensor matrix's outdoor row calibrates the radii and base about 0.15-0.25 % large, and
 without range noise it does not (`bench/sensor_matrix.py --factors outdoor`). Here each
@@ -67,8 +67,16 @@ The front end is patched for the run only (functions of point_to_line and scan_m
 wrapped in each worker process; the last variant also rewrites the keyframes' increments
 before the calibration); the product code is not changed.
 
+--row N takes another row of bench/sensor_matrix.py instead of the outdoor one (its twin
+without range noise: neither the constant part nor the part proportional to the range).
+Variants 3, 9-12, 16 and 17 take the reference's returns as its anchors or fit its lines
+over 6 beams, as the product does on a low-noise laser, and variant 7 applies only there:
+on a laser judged noisy (the wide fit, anchors on fitted lines) they change more than they
+say, or nothing. Variants 0-2, 4-6, 8, 13-15 and 18 apply to any row.
+
 Run: .venv/bin/python bench/outdoor_noise_roles.py [--seeds 20] [--duration 120] [--jobs 2]
      [--variants N ...]   (their numbers in the list above, from 0; default all)
+     [--row N]            (bench/sensor_matrix.py's row, from 0; default the outdoor one)
 """
 from __future__ import annotations
 
@@ -83,7 +91,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir, seeds_arguments, table  # noqa: E402
 from sensor_matrix import ROWS  # noqa: E402
 
-OUTDOOR = ROWS["outdoor, default laser"]
+OUTDOOR_NAME = "outdoor, default laser"
 VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference anchors noise-free", "pairing at the true motion",
             "matches = the true motion", "matches mirrored about the truth",
@@ -129,12 +137,14 @@ class _Twin:
         self.guess = None  # the wheels' prediction of the match being refined
         self.rng = np.random.default_rng(int(truth["seed"]))  # fresh range noise
         self.range_noise = float(truth["sensors"]["range_noise"])  # m, 1σ
+        self.range_noise_per_m = float(truth["sensors"]["range_noise_per_m"])  # its part ∝ range
 
     def with_fresh_noise(self, points):
         """`points` (noise-free, laser frame) moved along their beams by a new draw of the
         recording's range noise."""
-        along_beam = points / np.linalg.norm(points, axis=1, keepdims=True)
-        return points + along_beam * self.rng.normal(0.0, self.range_noise, len(points))[:, None]
+        ranges = np.linalg.norm(points, axis=1, keepdims=True)
+        sigma = self.range_noise + self.range_noise_per_m * ranges
+        return points + points / ranges * self.rng.normal(0.0, 1.0, (len(points), 1)) * sigma
 
     def points_of(self, scan, min_range, max_range):
         """The noise-free twin of scan_to_points(scan, min_range, max_range)."""
@@ -362,16 +372,16 @@ def _patch(variant, twin):
 
 def run_one(job):
     """One seed, one variant, in its own worker process (the patches do not leak)."""
-    variant, seed, duration, workdir = job
+    variant, seed, duration, workdir, row = job
     from sclam_ros.core.estimator import calibrate_keyframes
     from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
     from sclam_ros.io.recording import read_recording
     from sclam_ros.sim import simulate
 
     noisy, clean = Path(workdir) / f"noisy_{seed}", Path(workdir) / f"clean_{seed}"
-    truth = simulate(noisy, duration=duration, seed=seed, overwrite=True, **OUTDOOR)
+    truth = simulate(noisy, duration=duration, seed=seed, overwrite=True, **row)
     # No range noise, the same draws: the noise is drawn for every return either way.
-    simulate(clean, duration=duration, seed=seed, overwrite=True, **dict(OUTDOOR, range_noise=1e-9))
+    simulate(clean, duration=duration, seed=seed, overwrite=True, **noise_free(row))
     params = SclamParams.from_yaml(noisy / "params.yaml")
     twin = _Twin(noisy, clean, truth, params)
     _patch(variant, twin)
@@ -390,13 +400,25 @@ def run_one(job):
         math.degrees(error["laser_yaw"]), (error["laser_x"], result.sigma["laser_x"])
 
 
+def noise_free(row):
+    """The simulate() keywords of `row` without range noise (constant or ∝ range)."""
+    laser = dict(row.get("laser", {}))
+    if "range_noise_per_m" in laser:
+        laser["range_noise_per_m"] = 0.0
+    return dict(row, range_noise=1e-9, laser=laser)
+
+
 def main():
     ap = seeds_arguments(__doc__, seeds=20, duration=120.0)
     ap.add_argument("--variants", type=int, nargs="+", default=list(range(len(VARIANTS))))
+    ap.add_argument("--row", type=int, default=list(ROWS).index(OUTDOOR_NAME),
+                    help="bench/sensor_matrix.py's row (its number, from 0; default outdoor)")
     args = ap.parse_args()
     variants = [VARIANTS[i] for i in args.variants]
+    name = list(ROWS)[args.row]
     workdir = scratch_dir("sclam_outdoor_roles_")
-    jobs = [(v, s, args.duration, workdir) for v in variants for s in range(1, args.seeds + 1)]
+    jobs = [(v, s, args.duration, workdir, ROWS[name]) for v in variants
+            for s in range(1, args.seeds + 1)]
     # One job per process: the patches are process-wide.
     with ProcessPoolExecutor(args.jobs, max_tasks_per_child=1) as pool:
         results = list(pool.map(run_one, jobs))
@@ -411,7 +433,7 @@ def main():
                      f"{yaw.mean():+.3f} ± {yaw.std(ddof=1) / math.sqrt(len(yaw)):.3f}",
                      f"{1e3 * x_error.mean():+.2f} ± {1e3 * x_error.std(ddof=1) / math.sqrt(len(x_error)):.2f}",
                      f"{np.sqrt(np.mean((x_error / x_sigma) ** 2)):.2f}"])
-    print(f"outdoor row, default laser, {args.seeds} seeds × {args.duration:.0f} s; errors "
+    print(f"{name}, {args.seeds} seeds × {args.duration:.0f} s; errors "
           "against the simulator's truth")
     print(table(rows, ["refinement given", "mean error r_l r_r b %", "its standard error %",
                        "laser yaw error °", "laser x error mm", "laser x RMS err/σ"]))
