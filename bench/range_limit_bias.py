@@ -22,7 +22,10 @@ Variants:
   - the cut in the later scan of the pair only (the earlier one keeps its readings);
   - the earlier scan's returns whose *true* range is within 4σ of the limit left out (only a
     simulator knows the true range);
-  - noise-free scans with the 0.25 m wall fit of noisy lasers, and with the 6-beam fit.
+  - noise-free scans with the 0.25 m wall fit of noisy lasers, and with the 6-beam fit;
+  - the earlier scan's returns whose true point lies within 0.3 m of a wall segment's end
+    (corners, door frames, furniture edges: where the 0.25 m fit's neighbourhood holds
+    more than one straight wall) left out, with noise and noise-free.
 
 Run: .venv/bin/python bench/range_limit_bias.py [--seeds 6] [--draws 3] [--duration 120] [--jobs 2]
 """
@@ -49,6 +52,8 @@ VARIANTS = {
     "earlier scan: true range within 4σ of the limit left out": {"oracle": 4.0},
     "noise-free, 0.25 m wall fit": {"noise_free": True},
     "noise-free, 6-beam wall fit": {"noise_free": True, "narrow": True},
+    "earlier scan: returns within 0.3 m of a wall's end left out": {"ends": 0.3},
+    "noise-free, 0.25 m fit, the same left out": {"noise_free": True, "ends": 0.3},
 }
 PERIOD = 0.3  # s between matched scans (frontend/decimation.py)
 STRAIGHT = 0.02  # rad: at most this much turn between the two scans
@@ -85,6 +90,19 @@ def _measure(true, model, rng, variant, which):
     return ranges
 
 
+def _distance_to_wall_ends(world, pose, angles, ranges):
+    """(N,) m: how far the true point of each beam (inf where there is none) lies from the
+    nearest end of a wall segment of the simulator's world."""
+    hit = np.isfinite(ranges)
+    r = np.where(hit, ranges, 0.0)
+    c, s = np.cos(pose[2] + angles), np.sin(pose[2] + angles)
+    points = np.column_stack([pose[0] + r * c, pose[1] + r * s])
+    ends = np.concatenate([world.segments[:, :2], world.segments[:, 2:]])
+    from scipy.spatial import cKDTree
+
+    return np.where(hit, cKDTree(ends).query(points)[0], np.inf)
+
+
 def _laser_seed(job):
     """{variant: (Σ w·error along, Σ w·|motion|)} over one route's straight pairs."""
     label, laser, seed, draws, duration = job
@@ -116,6 +134,7 @@ def _laser_seed(job):
         true = [world.raycast(p, angles, model.range_max + 1.0)
                 for p in (first, se2.compose(first, z_true))]
         true = [np.where(t > model.range_max, np.inf, t) for t in true]
+        near_end = _distance_to_wall_ends(world, first, angles, true[0])
         along = z_true[:2] / np.hypot(*z_true[:2])
         for draw in range(draws):
             for name, variant in VARIANTS.items():
@@ -123,6 +142,8 @@ def _laser_seed(job):
                 earlier, later = (_measure(t, model, draw_rng, variant, i) for i, t in enumerate(true))
                 if "oracle" in variant:
                     earlier[true[0] > model.range_max - variant["oracle"] * noise] = np.inf
+                if "ends" in variant:
+                    earlier[near_end < variant["ends"]] = np.inf
                 reference = point_to_line.ReferenceScan.from_points(
                     scan_to_points(scan(earlier)), None if variant.get("narrow") else fit_noise,
                     usable if variant.get("clearance", True) else np.inf)
