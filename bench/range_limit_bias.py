@@ -25,7 +25,9 @@ Variants:
   - noise-free scans with the 0.25 m wall fit of noisy lasers, and with the 6-beam fit;
   - the earlier scan's returns whose true point lies within 0.3 m of a wall segment's end
     (corners, door frames, furniture edges: where the 0.25 m fit's neighbourhood holds
-    more than one straight wall) left out, with noise and noise-free.
+    more than one straight wall) left out, with noise and noise-free;
+  - without the laser's mixed pixels, without its dropouts (the URG-like laser has
+    neither: its rows repeat the pipeline's).
 
 Run: .venv/bin/python bench/range_limit_bias.py [--seeds 6] [--draws 3] [--duration 120] [--jobs 2]
 """
@@ -54,6 +56,8 @@ VARIANTS = {
     "noise-free, 6-beam wall fit": {"noise_free": True, "narrow": True},
     "earlier scan: returns within 0.3 m of a wall's end left out": {"ends": 0.3},
     "noise-free, 0.25 m fit, the same left out": {"noise_free": True, "ends": 0.3},
+    "without mixed pixels": {"mixed_pixels": False},
+    "without dropouts": {"dropouts": False},
 }
 PERIOD = 0.3  # s between matched scans (frontend/decimation.py)
 STRAIGHT = 0.02  # rad: at most this much turn between the two scans
@@ -80,11 +84,12 @@ def _measure(true, model, rng, variant, which):
     dropped = rng.random(ranges.shape) < model.dropout
     if variant.get("noise_free"):
         return np.where(ranges > model.range_max, np.inf, ranges)
-    if model.mixed_pixels > 0.0:
+    if model.mixed_pixels > 0.0 and variant.get("mixed_pixels", True):
         _mix_edges(ranges, model.mixed_pixels, np.random.default_rng(rng.integers(1 << 31)))
     hit = np.isfinite(ranges)
     ranges[hit] += (model.range_noise + model.range_noise_per_m * ranges[hit]) * normal[hit]
-    ranges[hit & dropped] = np.inf
+    if variant.get("dropouts", True):
+        ranges[hit & dropped] = np.inf
     if which in variant.get("cut", (0, 1)):
         ranges[ranges > model.range_max] = np.inf
     return ranges
