@@ -39,6 +39,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import POWERBOT_LASER_MOUNT, powerbot_route, table  # noqa: E402
@@ -95,17 +96,19 @@ def _measure(true, model, rng, variant, which):
     return ranges
 
 
-def _distance_to_wall_ends(world, pose, angles, ranges):
+def _wall_ends(world):
+    """KD-tree of the ends of the simulator's wall segments."""
+    return cKDTree(np.concatenate([world.segments[:, :2], world.segments[:, 2:]]))
+
+
+def _distance_to_wall_ends(wall_ends, pose, angles, ranges):
     """(N,) m: how far the true point of each beam (inf where there is none) lies from the
-    nearest end of a wall segment of the simulator's world."""
+    nearest wall end (`_wall_ends`)."""
     hit = np.isfinite(ranges)
     r = np.where(hit, ranges, 0.0)
     c, s = np.cos(pose[2] + angles), np.sin(pose[2] + angles)
     points = np.column_stack([pose[0] + r * c, pose[1] + r * s])
-    ends = np.concatenate([world.segments[:, :2], world.segments[:, 2:]])
-    from scipy.spatial import cKDTree
-
-    return np.where(hit, cKDTree(ends).query(points)[0], np.inf)
+    return np.where(hit, wall_ends.query(points)[0], np.inf)
 
 
 def _laser_seed(job):
@@ -122,6 +125,7 @@ def _laser_seed(job):
     model = LaserModel(beams=laser["beams"], range_noise=laser["range_noise"], **laser["laser"])
     angles = model.angles()
     start, motion = _pairs(world, POWERBOT_LASER_MOUNT, duration, seed)
+    wall_ends = _wall_ends(world)
 
     def scan(ranges):
         return Scan(0.0, ranges, model.angle_min, model.angle_increment, model.range_min, np.inf)
@@ -139,7 +143,7 @@ def _laser_seed(job):
         true = [world.raycast(p, angles, model.range_max + 1.0)
                 for p in (first, se2.compose(first, z_true))]
         true = [np.where(t > model.range_max, np.inf, t) for t in true]
-        near_end = _distance_to_wall_ends(world, first, angles, true[0])
+        near_end = _distance_to_wall_ends(wall_ends, first, angles, true[0])
         along = z_true[:2] / np.hypot(*z_true[:2])
         for draw in range(draws):
             for name, variant in VARIANTS.items():
