@@ -28,9 +28,13 @@ Tables:
      the matched displacement against the true one, per match and chained over 1 s (what a
      keyframe edge of the graph sees), bias and σ, time per scan, and the guess leak (the
      slope of z's scale against the odometry guess's scale error). Same route and seed in
-     every row, so rows differ by the factor only.
+     every row, so rows differ by the factor only;
+  6. (--covariance) the shape of each match's stated covariance against its error, level
+     aside, on the sensor matrix's lasers: the errors whitened along the covariance's strong
+     and weak translation axes, for the graph's covariance (noise model + refinement) and
+     the refinement's alone, and the maximum-likelihood weights of the two parts.
 
-Run:  .venv/bin/python bench/scan_matching_accuracy.py [--quick] [--factors]
+Run:  .venv/bin/python bench/scan_matching_accuracy.py [--quick] [--factors] [--covariance]
 """
 from __future__ import annotations
 
@@ -126,6 +130,7 @@ class Result:
     times: np.ndarray  # (N,) s per add_scan
     rejections: object
     matches: list
+    information: list  # (3, 3) information of each z as the graph gets it (None unrefined)
 
 
 def run(data: Dataset, config: ScanMatcherConfig, use_guess=True, refine=True) -> Result:
@@ -133,16 +138,16 @@ def run(data: Dataset, config: ScanMatcherConfig, use_guess=True, refine=True) -
     refinement (point_to_line.RefinedScanMatcher); errors of the z the graph gets."""
     matcher = ScanMatcher(config)
     refined = RefinedScanMatcher(matcher)
-    errors, truth, points, pairs, times, matches = [], [], [], [], [], []
+    errors, truth, points, pairs, times, matches, infos = [], [], [], [], [], [], []
     for i, scan in enumerate(data.scans):
         guess = data.guesses[i] if use_guess else None
         start = time.perf_counter()
         if refine:
-            match, z, _ = refined.add_scan(scan, guess, scan_to_points(scan, config.min_range,
-                                                                    config.max_range))
+            match, z, information = refined.add_scan(scan, guess, scan_to_points(
+                scan, config.min_range, config.max_range))
         else:
             match = matcher.add_scan(scan, guess)
-            z = None if match is None else match.z
+            z, information = (None, None) if match is None else (match.z, None)
         times.append(time.perf_counter() - start)
         if match is None or z is None:  # z None: a match the refinement did not confirm
             continue
@@ -152,8 +157,9 @@ def run(data: Dataset, config: ScanMatcherConfig, use_guess=True, refine=True) -
         points.append(match.num_points)
         pairs.append((match.index_from, match.index_to))
         matches.append(match)
+        infos.append(information)
     return Result(np.array(errors), np.array(truth), np.array(points), np.array(pairs), np.array(times),
-                  matcher.rejections, matches)
+                  matcher.rejections, matches, infos)
 
 
 def robust_sigma(x, axis=0):
@@ -301,6 +307,83 @@ def factors_table(duration, seed=1):
               f"| {r.rejections.total():8d} | {guess_leak(data, base):10.2f}", flush=True)
 
 
+# (label, make_sensor_dataset keywords) of table 6: the matrix's lasers (bench/sensor_matrix.py).
+COVARIANCE_LASERS = [
+    ("default: 10 Hz, 360 b, 360°, 20 m, 1 cm", {}),
+    ("40 Hz, 1080 b, 270° (UST-10LX)", dict(scan_rate=40.0, beams=1081, fov=np.radians(270.0))),
+    ("10 Hz, 683 b, 240°, 5.6 m, 3 cm (URG-04LX)", dict(beams=683, fov=np.radians(240.0),
+                                                       range_max=5.6, range_noise=0.03)),
+    ("360°, 360 b, 5 cm", dict(range_noise=0.05)),
+    ("low-cost: 5 Hz, 720 b, 12 m, 2 cm + 1 %", dict(
+        scan_rate=5.0, beams=720, range_max=12.0, range_noise=0.02, range_noise_per_m=0.01,
+        dropout=0.1, mixed_pixels=0.3)),
+    ("outdoor scene", dict(scene="outdoor")),
+]
+
+
+def covariance_honesty(r: Result) -> dict:
+    """How well each match's stated covariance describes its error, level aside (a recording's
+    variance components set the level; the shape is what they cannot fix).
+
+    The graph's covariance of a match is the noise model's (a function of the motion,
+    isotropic in translation) plus the refinement's own (point_to_line.refine_with_covariance:
+    large along what the pair of scans does not fix). Each is scaled by its maximum-likelihood
+    factor; the errors are then whitened along the translation covariance's axes: RMS 1 along
+    both when the shape is right. Also the maximum-likelihood weights (model, refinement) of
+    the two parts when each gets its own."""
+    from scipy.optimize import minimize
+
+    keep = [n for n, info in enumerate(r.information) if info is not None]
+    e = r.errors[keep]
+    graph = np.linalg.inv(np.array([r.information[n] for n in keep]))
+    model = np.linalg.inv(np.array([r.matches[n].information for n in keep]))
+    parts = {"graph": (graph, None), "refinement alone": (graph - model, None)}
+
+    def nll(cov):
+        return 0.5 * float(np.sum(np.einsum("mi,mij,mj->m", e, np.linalg.inv(cov), e)
+                                  + np.linalg.slogdet(cov)[1]))
+
+    out = {"matches": len(e)}
+    for name, (cov, _) in parts.items():
+        scale = float(np.mean(np.einsum("mi,mij,mj->m", e, np.linalg.inv(cov), e)) / 3.0)
+        cov = cov * scale
+        w, v = np.linalg.eigh(cov[:, :2, :2])  # ascending: strong axis first
+        along = np.einsum("mji,mj->mi", v, e[:, :2]) / np.sqrt(w)
+        aniso = np.sqrt(w[:, 1] / w[:, 0])
+        top = aniso >= np.quantile(aniso, 0.9)
+        out[name] = dict(
+            rms=np.sqrt(np.mean(along ** 2, axis=0)),
+            theta=float(np.sqrt(np.mean(e[:, 2] ** 2 / cov[:, 2, 2]))),
+            top=np.sqrt(np.mean(along[top] ** 2, axis=0)), nll=nll(cov))
+    refinement = graph - model
+    fit = minimize(lambda p: nll(np.exp(p[0]) * model + np.exp(p[1]) * refinement), [0.0, 0.0],
+                   method="Nelder-Mead", options=dict(xatol=1e-3, fatol=1e-3))
+    out["weights"] = np.exp(fit.x)
+    out["gain"] = (out["graph"]["nll"] - float(fit.fun)) / len(e)
+    return out
+
+
+def covariance_table(duration, seed=1):
+    print("6. Honesty of each match's stated covariance, level aside (every scan matched; "
+          f"{duration:.0f} s, seed {seed}). RMS of the error whitened along the translation "
+          "covariance's strong and weak axes and in θ (1 when the shape is right); the same for "
+          "the tenth of matches whose covariance is most elongated; ML weights of the noise "
+          "model's and the refinement's parts, and the NLL they gain per match over one scale")
+    print(f"{'laser':44s} {'matches':>7s} | {'graph: strong weak θ':>20s} | {'elongated tenth':>15s} "
+          f"| {'refinement alone':>20s} | {'elongated tenth':>15s} | weights model, refinement | gain")
+    base = ScanMatcherConfig()
+    for label, kw in COVARIANCE_LASERS:
+        h = covariance_honesty(run(make_sensor_dataset(duration, seed=seed, **kw), base, True))
+        cells = []
+        for name in ("graph", "refinement alone"):
+            c = h[name]
+            cells += [f"{c['rms'][0]:6.2f} {c['rms'][1]:6.2f} {c['theta']:6.2f}",
+                      f"{c['top'][0]:7.2f} {c['top'][1]:7.2f}"]
+        print(f"{label:44s} {h['matches']:7d} | {cells[0]:>20s} | {cells[1]:>15s} | {cells[2]:>20s} "
+              f"| {cells[3]:>15s} | {h['weights'][0]:12.3f} {h['weights'][1]:12.3f} | {h['gain']:.3f}",
+              flush=True)
+
+
 GUESS_STEP = 0.03  # translation error of the odometry guess, ± (3 %: a nominal radius 1 mm off at 3 cm)
 
 
@@ -322,11 +405,16 @@ def main():
     parser.add_argument("--quick", action="store_true", help="shorter data, fewer configurations")
     parser.add_argument("--duration", type=float, default=None, help="s of simulated driving")
     parser.add_argument("--factors", action="store_true", help="only table 5 (the lasers people own)")
-    parser.add_argument("--seed", type=int, default=1, help="route and noise of table 5 (default 1)")
+    parser.add_argument("--covariance", action="store_true",
+                        help="only table 6 (each match's stated covariance against its error)")
+    parser.add_argument("--seed", type=int, default=1, help="route and noise of tables 5 and 6 (default 1)")
     args = parser.parse_args()
     duration = args.duration or (60.0 if args.quick else 300.0)
     if args.factors:
         factors_table(args.duration or 120.0, args.seed)
+        return
+    if args.covariance:
+        covariance_table(args.duration or 120.0, args.seed)
         return
 
     data = make_dataset(duration)
