@@ -337,14 +337,15 @@ def covariance_honesty(r: Result) -> dict:
     e = r.errors[keep]
     graph = np.linalg.inv(np.array([r.information[n] for n in keep]))
     model = np.linalg.inv(np.array([r.matches[n].information for n in keep]))
-    parts = {"graph": (graph, None), "refinement alone": (graph - model, None)}
+    refinement = graph - model
+    parts = {"graph": graph, "refinement alone": refinement}
 
     def nll(cov):
         return 0.5 * float(np.sum(np.einsum("mi,mij,mj->m", e, np.linalg.inv(cov), e)
                                   + np.linalg.slogdet(cov)[1]))
 
     out = {"matches": len(e)}
-    for name, (cov, _) in parts.items():
+    for name, cov in parts.items():
         scale = float(np.mean(np.einsum("mi,mij,mj->m", e, np.linalg.inv(cov), e)) / 3.0)
         cov = cov * scale
         w, v = np.linalg.eigh(cov[:, :2, :2])  # ascending: strong axis first
@@ -355,7 +356,6 @@ def covariance_honesty(r: Result) -> dict:
             rms=np.sqrt(np.mean(along ** 2, axis=0)),
             theta=float(np.sqrt(np.mean(e[:, 2] ** 2 / cov[:, 2, 2]))),
             top=np.sqrt(np.mean(along[top] ** 2, axis=0)), nll=nll(cov))
-    refinement = graph - model
     fit = minimize(lambda p: nll(np.exp(p[0]) * model + np.exp(p[1]) * refinement), [0.0, 0.0],
                    method="Nelder-Mead", options=dict(xatol=1e-3, fatol=1e-3))
     out["weights"] = np.exp(fit.x)
