@@ -58,6 +58,7 @@ from sclam_ros.sim.motion import TrueKinematics
 from sclam_ros.sim.sensors import LaserModel
 from sclam_ros.sim.trajectory import simulate_trajectory
 from sclam_ros.sim.world import SCENES, office_world
+from sensor_matrix import LOW_COST  # bench/, the script's own directory
 
 MOUNT = np.array([0.15, -0.03, np.deg2rad(4.0)])  # true laser pose on base_link
 NOMINAL_MOUNT = MOUNT + [0.0, 0.0, np.deg2rad(2.0)]  # what the guess uses
@@ -307,17 +308,18 @@ def factors_table(duration, seed=1):
               f"| {r.rejections.total():8d} | {guess_leak(data, base):10.2f}", flush=True)
 
 
-# (label, make_sensor_dataset keywords) of table 6: the matrix's lasers (bench/sensor_matrix.py).
-COVARIANCE_LASERS = [
-    ("default: 10 Hz, 360 b, 360°, 20 m, 1 cm", {}),
-    ("40 Hz, 1080 b, 270° (UST-10LX)", dict(scan_rate=40.0, beams=1081, fov=np.radians(270.0))),
-    ("10 Hz, 683 b, 240°, 5.6 m, 3 cm (URG-04LX)", dict(beams=683, fov=np.radians(240.0),
-                                                       range_max=5.6, range_noise=0.03)),
-    ("360°, 360 b, 5 cm", dict(range_noise=0.05)),
-    ("low-cost: 5 Hz, 720 b, 12 m, 2 cm + 1 %", dict(
-        scan_rate=5.0, beams=720, range_max=12.0, range_noise=0.02, range_noise_per_m=0.01,
-        dropout=0.1, mixed_pixels=0.3)),
-    ("outdoor scene", dict(scene="outdoor")),
+def _flat(row) -> dict:
+    """make_sensor_dataset keywords of a bench/sensor_matrix.py row (its laser keywords
+    nested under "laser" there)."""
+    return {**{k: v for k, v in row.items() if k != "laser"}, **row.get("laser", {})}
+
+
+# Table 6: the matrix's lasers (bench/sensor_matrix.py), from table 5's rows where it has them.
+COVARIANCE_LASERS = [(label, dict(SENSOR_FACTORS)[label]) for label in (
+    "default: 10 Hz, 360 b, 360°, 20 m, 1 cm", "40 Hz, 1080 b, 270° (UST-10LX)",
+    "10 Hz, 683 b, 240°, 5.6 m, 3 cm (URG-04LX)", "360°, 360 b, 5 cm")] + [
+    ("low-cost: 5 Hz, 720 b, 12 m, 2 cm + 1 %", _flat(LOW_COST)),
+    ("outdoor scene", dict(SENSOR_FACTORS)["outdoor scene"]),
 ]
 
 
