@@ -26,7 +26,9 @@ import numpy as np
 from sclam_ros.core.inputs import Rejections
 
 LEAD_S = 3.0  # s read before a chunk's span: encoder history and a warm scan-matcher map
-TAIL_S = 1.0  # s read after it: the encoder samples that sync the span's last scans
+# s read after it: the encoder samples that sync the span's last scans, two after each even
+# at 1 Hz (between slow samples a scan waits for the second after it: sync.EncoderStream.settled)
+TAIL_S = 2.5
 MIN_CHUNK_S = 20.0  # shorter chunks spend more on their lead than they save
 
 

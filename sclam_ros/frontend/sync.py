@@ -23,8 +23,9 @@ which the calibration would absorb into the wheel radii. Linear interpolation is
 constant wheel speed between two samples. Where the speed changes between samples it is
 not, and on slow odometry (1-2 Hz) that error is larger than the wheels' slip noise and
 biased with the drive (a 1 Hz wheel base came out 0.12 % short without slip noise): there
-the angles are taken on the parabola through the sample before and the two around the
-stamp (SyncConfig.curved_interval), which is exact for constant acceleration. Each
+the angles are taken on the cubic through the two samples before and the two after the
+stamp (SyncConfig.curved_interval), which is exact for constant jerk; a scan waits for
+the second sample after it (EncoderStream.settled). Each
 interpolated angle carries the variance of the line's interpolation error
 (EncoderStream._off_line), which the odometry edges add to their covariance.
 """
@@ -80,14 +81,18 @@ class SyncConfig:
     max_history: float = 10.0
     # How long (in scan time) a scan waits for the encoder stream to reach its stamp.
     max_scan_latency: float = 1.0
-    # Between samples further apart than this, the angles are interpolated on the parabola
-    # through the sample before and the two around the stamp (EncoderStream._curved), not on
-    # the straight line. Measured on simulated 1 Hz drives (`python bench/sensor_matrix.py
-    # --seeds 20 --duration 120 --rows 7`; ad hoc on the same recordings without slip noise,
-    # where only the interpolation errs: wheel base −0.12 ± 0.02 % on the line, −0.04 ±
-    # 0.01 % on the parabola). Closer samples keep the line: there the interpolation error
-    # is below the slip noise, and the second difference of ticks a few ms apart is mostly
-    # quantisation and stamp jitter.
+    # Between samples further apart than this, the angles are interpolated on a curve
+    # (EncoderStream._curved): the cubic through the two samples before and the two after
+    # the stamp, or the parabola through the one before and the two around it where no
+    # second sample follows in the segment (_off_line_curved), not on the straight line.
+    # Measured on simulated 1 Hz drives (`python bench/sensor_matrix.py --seeds 20
+    # --duration 120 --rows 7`; ad hoc on the same recordings without slip noise, where
+    # only the interpolation errs): wheel base −0.12 ± 0.02 % on the line, −0.05 ± 0.01 %
+    # on the parabola, −0.03 ± 0.02 % on the cubic; laser x +0.86 ± 0.14 mm on the
+    # parabola, +0.48 ± 0.14 mm on the cubic.
+    # Closer samples keep the line: there the interpolation error is below the slip noise,
+    # and the second difference of ticks a few ms apart is mostly quantisation and stamp
+    # jitter.
     curved_interval: float = 0.3
 
 
@@ -289,7 +294,7 @@ class EncoderStream:
                            self._right[i] + w * (self._right[i + 1] - self._right[i])])
         off_line = self._off_line(i, t)
         if curved and self._curved(i):
-            angles = angles - off_line
+            angles = angles - self._off_line_curved(i, t)
         variance = (INTERPOLATION_SIGMA_SCALE * off_line * self._rad_per_unit) ** 2
         return WheelAngles(t, angles * self._rad_per_unit, self._segments[i], variance,
                            t - stamps[i], self._path[i])
@@ -301,6 +306,47 @@ class EncoderStream:
         how far the parabola through samples i − 1, i and i + 1 lies below the line."""
         stamps = self._stamps
         return 0.5 * self._interval_motion(i)[1] * (t - stamps[i]) * (stamps[i + 1] - t)
+
+    def _off_line_curved(self, i: int, t: float) -> np.ndarray:
+        """(2,) raw units: how far below the line through samples i and i + 1 the cubic
+        through samples i − 1 ... i + 2 lies at ``t``, or with no sample i + 2 in the
+        segment (yet) the parabola through i − 1 ... i + 1 (_off_line).
+
+        A cubic φ lies φ''(τ)/2 · (t − t_i)(t_i+1 − t) below that line, τ the mean of t_i,
+        t_i+1 and t. φ'' is taken linear between the accelerations at the two samples
+        (_interval_motion's, each from the two intervals beside its sample): exact for
+        constant jerk. The parabola takes the acceleration at sample i for the whole
+        interval, and so errs against the jerk: on the way into a turn the heading lags,
+        on the way out it leads, which does not cancel. Measured ad hoc on 10 simulated
+        PowerBot drives at 1 Hz without wheel slip (120 s, 1200 edges, true calibration):
+        the edges' sideways error against their rotation +2.1 ± 0.3 mm/rad on the
+        parabola, −0.2 ± 0.3 mm/rad on the cubic (RMS 3.3 → 2.8 mm); with every scan match
+        replaced by the truth (bench/outdoor_noise_roles.py's variant on such a row, 20
+        seeds) the laser x came out +0.39 ± 0.08 → +0.23 ± 0.05 mm.
+        """
+        if not self._cubic(i):
+            return self._off_line(i, t)
+        stamps = self._stamps
+        start, end = stamps[i], stamps[i + 1]
+        at_start, at_end = self._interval_motion(i)[1], self._interval_motion(i + 1)[1]
+        w = ((start + end + t) / 3.0 - start) / (end - start)
+        return 0.5 * (at_start + w * (at_end - at_start)) * (t - start) * (end - t)
+
+    def _cubic(self, i: int) -> bool:
+        """Whether samples i − 1 ... i + 2 are held and in one segment (_off_line_curved)."""
+        segments = self._segments
+        return (i > 0 and i + 2 < len(segments)
+                and segments[i - 1] == segments[i] == segments[i + 1] == segments[i + 2])
+
+    def settled(self, t: float) -> bool:
+        """Whether the wheel angles at ``t`` (within the history) are final: no later
+        sample will change them. On a curved interval (_curved) they are until the sample
+        after its end has arrived (_off_line_curved takes the cubic then)."""
+        stamps = self._stamps
+        i = bisect.bisect_right(stamps, t) - 1
+        if i < 0 or stamps[i] == t or i + 1 >= len(stamps):
+            return True
+        return i + 2 < len(stamps) or not self._curved(i)
 
     def _curved(self, i: int) -> bool:
         """Whether the angles between samples i and i + 1 are taken on the parabola: the
@@ -337,9 +383,10 @@ class EncoderStream:
         exact, but not the shape of the path: a robot that turns, then drives, ends up
         beside one that drives, then turns. With wheel speeds w changing at a over the
         interval T (linearly) the end lies T³/12 · (a_v·ω − v·α) off the arc sideways,
-        which in wheel speeds is (r²/b) · T³/12 · (a_l·w_r − a_r·w_l). Without it the
-        sideways error of 1 s edges at 1 Hz was 1.6-2.3 times their σ (two simulated
-        PowerBot drives).
+        which in wheel speeds is (r²/b) · T³/12 · (a_l·w_r − a_r·w_l). Odometry edges
+        composed through interpolated angles follow part of that path
+        (graph.COMPOSED_PATH_SIGMA_SCALE); one arc per interval, as ~/odom integrates,
+        none of it.
         """
         stamps = self._stamps
         speed, acceleration = self._interval_motion(i)
@@ -480,25 +527,31 @@ class ScanSynchronizer:
 
     def flush(self) -> list[SyncedScan]:
         """End of data: sync what can be, count the rest."""
-        ready = self._resolve()
+        ready = self._resolve(final=True)
         self._drop_pending("scan_no_encoder_coverage")
         return ready
 
-    def _resolve(self) -> list[SyncedScan]:
+    def _resolve(self, final: bool = False) -> list[SyncedScan]:
+        """The pending scans the encoders cover, in order; with ``final`` (end of data)
+        also those whose angles more samples would still have settled."""
         ready = []
         latest = self.stream.latest_stamp
         newest_scan = self._last_scan_stamp
         while self._pending:
             scan = self._pending[0]
             covered = latest is not None and scan.stamp <= latest
+            # Slow odometry (1-2 Hz) may take up to its gap allowance to cover a scan, and
+            # one period more to settle it (EncoderStream.settled).
+            wait = max(self.config.max_scan_latency, self.stream.max_gap)
+            waited = newest_scan is not None and newest_scan - scan.stamp > wait
             if not covered:
-                # Slow odometry (1-2 Hz) may take up to its gap allowance to cover a scan.
-                wait = max(self.config.max_scan_latency, self.stream.max_gap)
-                if newest_scan is not None and newest_scan - scan.stamp > wait:
+                if waited:
                     self._pending.pop(0)
                     self.rejections.add("scan_no_encoder_coverage")
                     continue
                 break  # wait for more encoder samples; later scans wait behind it
+            if not (final or waited or self.stream.settled(scan.stamp)):
+                break
             self._pending.pop(0)
             wheels, reason = self.stream.lookup(scan.stamp)
             if wheels is None:
