@@ -340,8 +340,9 @@ class EncoderStream:
 
     def settled(self, t: float) -> bool:
         """Whether the wheel angles at ``t`` (within the history) are final: no later
-        sample will change them. On a curved interval (_curved) they are until the sample
-        after its end has arrived (_off_line_curved takes the cubic then)."""
+        sample will change them. On a curved interval (_curved) they are final once the
+        sample after the interval's end has arrived (_off_line_curved then takes the cubic,
+        or the parabola if that sample starts a new segment)."""
         stamps = self._stamps
         i = bisect.bisect_right(stamps, t) - 1
         if i < 0 or stamps[i] == t or i + 1 >= len(stamps):
