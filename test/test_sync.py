@@ -118,18 +118,23 @@ def test_slow_samples_are_interpolated_on_the_parabola_through_three_samples():
                                0.5 * accel * (t - 1.0) * (1.2 - t), rtol=1e-9)
 
 
-def test_slow_samples_are_interpolated_on_the_cubic_through_four_samples():
+def test_slow_samples_are_interpolated_symmetrically_in_time():
     """Wheels whose acceleration changes at a constant rate (φ = j t³/6, as into and out of
-    a turn), sampled at 1 Hz: with two samples before the stamp and two after, the cubic
-    through them is exact. Without the second sample after (the newest interval), the
-    parabola through three samples misses by j/6 (t − t_i−1)(t − t_i)(t_i+1 − t): on the
-    way into a turn the heading lags, out of it leads, which would not cancel."""
+    a turn), sampled at 1 Hz. With two samples before the stamp and two after, the cubic
+    (Catmull-Rom) misses by j/3 (t − t_i)(t_i+1 − t)(t_mid − t): zero at the samples and
+    the interval's middle, opposite in its two halves, so it neither lags nor leads.
+    Without the second sample after (the newest interval) the parabola through three
+    samples misses by j/6 (t − t_i−1)(t − t_i)(t_i+1 − t), of one sign across the
+    interval: it lags."""
     jerk = np.array([0.6, -0.9])  # rad/s³
     stream = EncoderStream(ticks_per_revolution=0.0, config=SyncConfig(max_history=100.0))
     for t in np.arange(12.0):
         stream.add(t, *(jerk * t**3 / 6.0))
     for t in (1.5, 4.25, 9.9):
-        np.testing.assert_allclose(stream.wheel_angles_at(t).angles, jerk * t**3 / 6.0, atol=1e-12)
+        start = np.floor(t)
+        np.testing.assert_allclose(
+            stream.wheel_angles_at(t).angles - jerk * t**3 / 6.0,
+            jerk / 3.0 * (t - start) * (start + 1.0 - t) * (start + 0.5 - t), atol=1e-12)
     t = 10.5  # between the last two samples: the parabola
     np.testing.assert_allclose(stream.wheel_angles_at(t).angles - jerk * t**3 / 6.0,
                                jerk / 6.0 * (t - 9.0) * (t - 10.0) * (11.0 - t), rtol=1e-9)
@@ -150,7 +155,8 @@ def test_scans_between_slow_samples_wait_for_the_second_sample_after_them():
     assert [scan.stamp for scan in sync.pending] == [3.4]
     ready = sync.add_encoder(5.0, *(jerk * 5.0**3 / 6.0))
     assert [s.scan.stamp for s in ready] == [3.4]
-    np.testing.assert_allclose(ready[0].wheels.angles, jerk * 3.4**3 / 6.0, atol=1e-12)
+    np.testing.assert_allclose(ready[0].wheels.angles - jerk * 3.4**3 / 6.0,
+                               jerk / 3.0 * 0.4 * 0.6 * (0.5 - 0.4), atol=1e-12)  # the cubic
     assert sync.add_scan(scan_at(4.5)) == []
     last = sync.flush()
     assert [s.scan.stamp for s in last] == [4.5] and sync.rejections.total() == 0
@@ -409,9 +415,9 @@ def test_sideways_path_variance_at_1_hz_covers_the_path_between_samples(tmp_path
     samples: a robot that turns, then drives, ends up beside one that drives, then turns.
     Against the simulator's ground truth, the sideways errors of the odometry edges (true
     wheel calibration) over their stated σ have an RMS within [0.5, 1.5] with the path
-    variance (0.75 on this drive), and on the quarter of the edges with the most path
-    variance (those that turn while accelerating) within [0.5, 1.5] with it (0.93) and
-    above 1.5 without it (2.2)."""
+    variance (0.72 on this drive), and on the quarter of the edges with the most path
+    variance (those that turn while accelerating) within [0.5, 1.5] with it (0.90) and
+    above 1.5 without it (2.1)."""
     from sclam_ros.core import graph, se2
 
     inputs, params, k, odometry, true_motion = _one_hz_edges(tmp_path / "drive", duration=90.0,

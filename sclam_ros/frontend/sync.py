@@ -23,9 +23,10 @@ which the calibration would absorb into the wheel radii. Linear interpolation is
 constant wheel speed between two samples. Where the speed changes between samples it is
 not, and on slow odometry (1-2 Hz) that error is larger than the wheels' slip noise and
 biased with the drive (a 1 Hz wheel base came out 0.12 % short without slip noise): there
-the angles are taken on the cubic through the two samples before and the two after the
-stamp (SyncConfig.curved_interval), which is exact for constant jerk; a scan waits for
-the second sample after it (EncoderStream.settled). Each
+the angles are taken on a cubic through the two samples before and the two after the
+stamp (SyncConfig.curved_interval; Catmull-Rom: exact for constant acceleration and
+symmetric in time); a scan waits for the second sample after it (EncoderStream.settled).
+Each
 interpolated angle carries the variance of the line's interpolation error
 (EncoderStream._off_line), which the odometry edges add to their covariance.
 """
@@ -82,14 +83,13 @@ class SyncConfig:
     # How long (in scan time) a scan waits for the encoder stream to reach its stamp.
     max_scan_latency: float = 1.0
     # Between samples further apart than this, the angles are interpolated on a curve
-    # (EncoderStream._curved): the cubic through the two samples before and the two after
+    # (EncoderStream._curved): a cubic through the two samples before and the two after
     # the stamp, or the parabola through the one before and the two around it where no
     # second sample follows in the segment (_off_line_curved), not on the straight line.
     # Measured on simulated 1 Hz drives (`python bench/sensor_matrix.py --seeds 20
     # --duration 120 --rows 7`; ad hoc on the same recordings without slip noise, where
     # only the interpolation errs): wheel base −0.12 ± 0.02 % on the line, −0.05 ± 0.01 %
-    # on the parabola, −0.03 ± 0.02 % on the cubic; laser x +0.86 ± 0.14 mm on the
-    # parabola, +0.48 ± 0.14 mm on the cubic.
+    # on the parabola.
     # Closer samples keep the line: there the interpolation error is below the slip noise,
     # and the second difference of ticks a few ms apart is mostly quantisation and stamp
     # jitter.
@@ -312,24 +312,29 @@ class EncoderStream:
         through samples i − 1 ... i + 2 lies at ``t``, or with no sample i + 2 in the
         segment (yet) the parabola through i − 1 ... i + 1 (_off_line).
 
-        A cubic φ lies φ''(τ)/2 · (t − t_i)(t_i+1 − t) below that line, τ the mean of t_i,
-        t_i+1 and t. φ'' is taken linear between the accelerations at the two samples
-        (_interval_motion's, each from the two intervals beside its sample): exact for
-        constant jerk. The parabola takes the acceleration at sample i for the whole
-        interval, and so errs against the jerk: on the way into a turn the heading lags,
-        on the way out it leads, which does not cancel. Measured ad hoc on 10 simulated
-        PowerBot drives at 1 Hz without wheel slip (120 s, 1200 edges, true calibration):
-        the edges' sideways error against their rotation +2.1 ± 0.3 mm/rad on the
-        parabola, −0.2 ± 0.3 mm/rad on the cubic (RMS 3.3 → 2.8 mm); with every scan match
-        replaced by the truth (bench/outdoor_noise_roles.py's variant on such a row, 20
-        seeds) the laser x came out +0.39 ± 0.08 → +0.23 ± 0.05 mm.
+        The cubic is the Hermite one (Catmull-Rom) that passes through samples i and i + 1
+        with the slopes there of the parabolas through each of them and its two
+        neighbours. It lies a(t)/2 · (t − t_i)(t_i+1 − t) below the line, a(t) the
+        accelerations at the two samples (_interval_motion's, each from the two intervals
+        beside its sample) interpolated linearly to t: exact for constant acceleration, and
+        the same forwards and backwards in time. The parabola alone takes the acceleration
+        at sample i for the whole interval and so lags the change of acceleration: on the
+        way into a turn the heading lags, on the way out it leads, which does not cancel.
+        The cubic through the four samples (exact for a constant change of acceleration)
+        instead takes the slope at each sample from all four, and it errs at the samples
+        themselves, where the odometry edges end. Measured ad hoc on 10 simulated PowerBot
+        drives at 1 Hz without wheel slip (120 s, 1200 edges, true calibration), the
+        edges' sideways error against their rotation and their rotation's error against
+        the rotation: parabola +2.1 ± 0.3 mm/rad and −0.0 ± 0.1 ‰; cubic through four
+        samples −0.2 ± 0.3 mm/rad and +0.5 ± 0.1 ‰; Catmull-Rom −0.2 ± 0.3 mm/rad and
+        −0.0 ± 0.1 ‰ (sideways RMS 3.3, 2.8, 2.8 mm).
         """
         if not self._cubic(i):
             return self._off_line(i, t)
         stamps = self._stamps
         start, end = stamps[i], stamps[i + 1]
         at_start, at_end = self._interval_motion(i)[1], self._interval_motion(i + 1)[1]
-        w = ((start + end + t) / 3.0 - start) / (end - start)
+        w = (t - start) / (end - start)
         return 0.5 * (at_start + w * (at_end - at_start)) * (t - start) * (end - t)
 
     def _cubic(self, i: int) -> bool:
