@@ -546,18 +546,17 @@ class ScanSynchronizer:
         while self._pending:
             scan = self._pending[0]
             covered = latest is not None and scan.stamp <= latest
-            # Slow odometry (1-2 Hz) may take up to its gap allowance to cover a scan, and
-            # one period more to settle it (EncoderStream.settled).
-            wait = max(self.config.max_scan_latency, self.stream.max_gap)
-            waited = newest_scan is not None and newest_scan - scan.stamp > wait
-            if not covered:
-                if waited:
+            if not (covered and (final or self.stream.settled(scan.stamp))):
+                # Slow odometry (1-2 Hz) may take up to its gap allowance to cover a scan,
+                # and one period more to settle it (EncoderStream.settled).
+                wait = max(self.config.max_scan_latency, self.stream.max_gap)
+                if newest_scan - scan.stamp <= wait:
+                    break  # wait for more encoder samples; later scans wait behind it
+                if not covered:
                     self._pending.pop(0)
                     self.rejections.add("scan_no_encoder_coverage")
                     continue
-                break  # wait for more encoder samples; later scans wait behind it
-            if not (final or waited or self.stream.settled(scan.stamp)):
-                break
+                # covered but unsettled for too long: synced with the samples at hand
             self._pending.pop(0)
             wheels, reason = self.stream.lookup(scan.stamp)
             if wheels is None:
