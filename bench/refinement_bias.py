@@ -23,7 +23,11 @@ Rows: the low-cost laser of bench/sensor_matrix.py (2 cm + 1 % of range, 12 m, 7
 no dropouts or mixed pixels, which only thin the scans), its noise in one scan of the pair
 only, two of the refinement's constants changed, a start 1 % long, constant-noise lasers,
 and the URG-04LX-like laser (started long, without the returns near its range limit, with
-a longer range).
+a longer range). Rows 17-23: pairs along the office corridor instead of the route's
+(the laser on the corridor's centre line heading along it), where matches come out
+longest, with the reference's wall lines partly replaced by the simulator's walls
+(oracle rows: its residual origins or its normals on the true walls) and with the
+6-beam line fit a 1 cm laser gets.
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
      [--rows N ...]
@@ -43,6 +47,7 @@ from common import table  # noqa: E402
 MOUNT = np.array([0.15, -0.03, np.deg2rad(4.0)])  # laser on base_link, as the simulator's default
 LOW_COST = dict(beams=720, range_noise=0.02, range_max=12.0, range_noise_per_m=0.01)
 URG = dict(beams=683, range_noise=0.03, range_max=5.6, fov=np.radians(240.0))
+CONSTANT_5_5 = dict(LOW_COST, range_noise=0.055, range_noise_per_m=0.0)  # the low-cost's judged noise
 # (label, LaserModel keywords, noise in (reference, new) scan, point_to_line constants and
 # start_scale: the refinement's start × the true motion; clear_of_limit: returns within
 # this many σ of range_max left out, where the driver's cut makes the noise one-sided)
@@ -69,6 +74,23 @@ ROWS = [
     ("  without noise (the scene's geometry alone)", {}, (0.0, 0.0), {"scene": "outdoor"}),
     ("  started 1 % long", {}, (1.0, 1.0), {"scene": "outdoor", "start_scale": 1.01}),
     ("  720 beams", dict(beams=720), (1.0, 1.0), {"scene": "outdoor"}),
+    # Pairs along the office corridor (the laser on its centre line, ±0.2 m, heading along
+    # it), where a drive's matches come out longest; the oracle rows put the reference's
+    # residual origins (anchors) or its line normals on the true walls (only a simulator
+    # knows them), to tell which part of the reference's wall lines carries the bias.
+    ("low-cost, pairs along the corridor", LOW_COST, (1.0, 1.0), {"pairs": "corridor"}),
+    ("  noise in the new scan only", LOW_COST, (0.0, 1.0), {"pairs": "corridor"}),
+    ("  noise in the reference scan only", LOW_COST, (1.0, 0.0), {"pairs": "corridor"}),
+    ("constant 5.5 cm along the corridor, noise in the reference only", CONSTANT_5_5, (1.0, 0.0),
+     {"pairs": "corridor"}),
+    ("  its normals on the true walls (oracle)", CONSTANT_5_5, (1.0, 0.0),
+     {"pairs": "corridor", "oracle": "normals"}),
+    ("  its residual origins (anchors and returns) on the true walls (oracle)", CONSTANT_5_5,
+     (1.0, 0.0), {"pairs": "corridor", "oracle": "anchors"}),
+    ("  only the returns used as their own origins on walls across the corridor, on the "
+     "true walls (oracle)", CONSTANT_5_5, (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across"}),
+    ("  lines fitted over 6 beams (as for a 1 cm laser)", CONSTANT_5_5, (1.0, 0.0),
+     {"pairs": "corridor", "fit": "narrow"}),
 ]
 
 
@@ -124,7 +146,10 @@ def _measure_row(job):
     rng = np.random.default_rng(seed)
     model = LaserModel(**laser)
     angles = model.angles()
-    laser_poses = se2.compose(route.pose_at(rng.uniform(0.0, route.duration - 1.0, pairs)), MOUNT)
+    if options.get("pairs") == "corridor":
+        laser_poses = _corridor_poses(world, pairs, rng)
+    else:
+        laser_poses = se2.compose(route.pose_at(rng.uniform(0.0, route.duration - 1.0, pairs)), MOUNT)
     # The wall-line fit the recording would choose: the laser's own noise, judged as
     # RefinedScanMatcher does (median over 30 scans), whichever scan carries noise here.
     judged = [point_to_line.range_noise(_scan(model.measure(world.raycast(p, angles, model.range_max)[None],
@@ -132,6 +157,8 @@ def _measure_row(job):
               for p in laser_poses[:30]]
     noise = float(np.median([n for n in judged if n is not None]))
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
+    if options.get("fit") == "narrow":
+        fit_noise = None
     # Lines near the range limit are left out as RefinedScanMatcher does (CLEAR_OF_LIMIT).
     usable_range = model.range_max - (point_to_line.CLEAR_OF_LIMIT * noise
                                       if noise <= point_to_line.NOT_A_NOISE else 0.0)
@@ -149,6 +176,9 @@ def _measure_row(job):
             reference = point_to_line.ReferenceScan.from_points(
                 scan_to_points(_scan(ranges[0], model)), fit_noise, usable_range,
                 small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE)
+            if options.get("oracle") and reference is not None:
+                reference = _on_true_walls(reference, options["oracle"], world, first,
+                                           _scan(ranges[0], model), true[0])
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])
@@ -172,6 +202,51 @@ def _measure_row(job):
     resampled = rng.integers(0, len(per_pair), (200, len(per_pair)))
     spread = 100.0 * np.std(per_pair[resampled, 1].sum(1) / per_pair[resampled, 2].sum(1)) / step
     return label, mean, error, weighted, spread, low, high, used, noise
+
+
+def _corridor_poses(world, count, rng):
+    """Laser poses on the office corridor's centre line (±0.2 m), heading along it either
+    way (±2°), between its end nodes."""
+    corridor = np.array([xy for name, xy in world.nodes.items() if name.startswith("corridor")])
+    x = rng.uniform(corridor[:, 0].min(), corridor[:, 0].max(), count)
+    y = corridor[0, 1] + rng.normal(0.0, 0.2, count)
+    heading = rng.choice([0.0, np.pi], count) + rng.normal(0.0, np.radians(2.0), count)
+    return np.column_stack([x, y, heading])
+
+
+def _on_true_walls(reference, which, world, pose, scan, true_ranges):
+    """`reference` (of `scan`, taken at laser pose `pose`) with its anchors ("anchors":
+    moved along the true wall's normal onto the wall; "returns across": only those that
+    are returns themselves, on walls facing along the laser's x axis) or its normals
+    ("normals": the true wall's) taken from the simulator's walls: each reference point is found among the
+    scan's points (from_points keeps them as they are), its beam's noise-free return gives
+    the wall, the nearest segment its direction."""
+    import dataclasses
+
+    from sclam_ros.core import se2
+    from sclam_ros.frontend.scan_matching import scan_to_points, valid_beams
+
+    beams = np.flatnonzero(valid_beams(scan))  # scan_to_points' points, in order
+    beam_of = {tuple(p): n for p, n in zip(scan_to_points(scan)[:, :2], beams)}
+    n = np.array([beam_of[tuple(p)] for p in reference.points])
+    angle = scan.angles()[n]
+    wall_point = true_ranges[n, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    world_point = se2.transform_points(pose, wall_point)
+    seg = world.segments
+    start, edge = seg[None, :, :2], seg[None, :, 2:] - seg[None, :, :2]
+    along = np.clip(((world_point[:, None] - start) * edge).sum(-1) / (edge * edge).sum(-1), 0, 1)
+    nearest = np.linalg.norm(world_point[:, None] - (start + along[..., None] * edge), axis=-1).argmin(1)
+    direction = edge[0, nearest] / np.linalg.norm(edge[0, nearest], axis=1)[:, None]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    normal = np.column_stack([-(c * direction[:, 1] - s * direction[:, 0]),
+                              c * direction[:, 0] + s * direction[:, 1]])  # laser frame
+    normal *= np.sign((normal * reference.normals).sum(1))[:, None]
+    if which == "normals":
+        return dataclasses.replace(reference, normals=normal)
+    offset = ((reference.anchors - wall_point) * normal).sum(1)
+    if which == "returns across":  # origins that are returns, on walls facing along x
+        offset *= np.all(reference.anchors == reference.points, axis=1) & (np.abs(normal[:, 0]) > 0.7)
+    return dataclasses.replace(reference, anchors=reference.anchors - offset[:, None] * normal)
 
 
 def main():
