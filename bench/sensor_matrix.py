@@ -103,6 +103,17 @@ def match_bias(bag, truth, keyframes) -> tuple:
     (before keyframes are merged: each match between the two scans' own stamps). A turn of
     the matched translations is an error of the laser yaw, which the calibration takes from
     the direction the laser moves in when the robot drives straight."""
+    z, z_true = matches_against_truth(bag, truth, keyframes)[:2]
+    norm = (z_true[:, :2] ** 2).sum()
+    scale = (z[:, :2] * z_true[:, :2]).sum() / norm
+    turn = (z_true[:, 0] * z[:, 1] - z_true[:, 1] * z[:, 0]).sum() / norm
+    return float(scale), float(turn)
+
+
+def matches_against_truth(bag, truth, keyframes) -> tuple:
+    """(z (M, 3), z_true (M, 3), information (M, 3, 3), true laser pose at the match's first
+    scan in the odometry frame (M, 3)) of every scan match of `keyframes` (before they are
+    merged), z_true from the recording's ground truth and the true mount."""
     from sclam_ros.core import se2
     from sclam_ros.io.recording import read_ground_truth
 
@@ -118,12 +129,8 @@ def match_bias(bag, truth, keyframes) -> tuple:
 
     a = laser_pose(np.array([stamp_of[kf.laser_from] for kf in matched]))
     b = laser_pose(np.array([kf.stamp for kf in matched]))
-    z_true = se2.between(b, a)
-    z = np.array([kf.laser_motion for kf in matched])
-    norm = (z_true[:, :2] ** 2).sum()
-    scale = (z[:, :2] * z_true[:, :2]).sum() / norm
-    turn = (z_true[:, 0] * z[:, 1] - z_true[:, 1] * z[:, 0]).sum() / norm
-    return float(scale), float(turn)
+    return (np.array([kf.laser_motion for kf in matched]), se2.between(b, a),
+            np.array([kf.laser_information for kf in matched]), a)
 
 
 def run_one(job):

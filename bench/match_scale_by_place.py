@@ -1,0 +1,105 @@
+"""Where on a drive the scan matches come out long: their scale along the office corridor and elsewhere.
+
+A calibration's wheel radii follow the scale of the scan matches as the graph weighs them.
+Here the matches of simulated drives (a row of bench/sensor_matrix.py, default the low-cost
+laser; --seeds seeds, --duration s each, matched as `sclam calibrate` does) are split by
+where they were made:
+
+  - along the corridor: the laser inside the office corridor's band (world y 6.5-9 m,
+    x 0-22 m; sim/world.py) and moving within 20° of the corridor's direction;
+  - elsewhere: every other match.
+
+Per place: the number of matches, its share of the matches' weight (information along the
+motion), and the scale of the matched translations, weighted as the graph weighs them,
+1 + Σ w·e·L / Σ w·L² (e the error along the true motion, L its length, w the information
+along it), and unweighted, Σ z·z_true / Σ |z_true|² (bench/sensor_matrix.py's), each ±
+its standard error from resampling the seeds. Matches shorter than 2 cm are left out (their
+direction is not defined).
+
+Run: .venv/bin/python bench/match_scale_by_place.py [--row 4] [--seeds 80] [--duration 120] [--jobs 2]
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import scratch_dir, table  # noqa: E402
+from sensor_matrix import ROWS, matches_against_truth  # noqa: E402
+
+CORRIDOR = dict(x=(0.0, 22.0), y=(6.5, 9.0))  # the office corridor (sim/world.py)
+ALONG = np.radians(20.0)  # motion within this of the corridor's direction (world x)
+SHORTEST = 0.02  # m
+
+
+def run_seed(job):
+    """Per place: (Σ w·e·L, Σ w·L², Σ e·L, Σ L², matches) of one simulated drive."""
+    row, seed, duration, workdir = job
+    from sclam_ros.core import se2
+    from sclam_ros.core.params import SclamParams
+    from sclam_ros.io.recording import read_recording
+    from sclam_ros.sim import simulate
+
+    bag = Path(workdir) / f"seed{seed}"
+    truth = simulate(bag, duration=duration, seed=seed, overwrite=True, **row)
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    z, z_true, information, start = matches_against_truth(bag, truth, read_recording(bag, params).keyframes)
+    shutil.rmtree(bag)  # 80 recordings would fill the scratch directory
+    start = se2.compose(np.broadcast_to(np.array(truth["odom_origin_in_world"], float), start.shape), start)
+    length = np.hypot(z_true[:, 0], z_true[:, 1])
+    keep = length > SHORTEST
+    unit = z_true[keep, :2] / length[keep, None]
+    error = ((z[keep, :2] - z_true[keep, :2]) * unit).sum(1)
+    weight = np.einsum("mi,mij,mj->m", unit, information[keep, :2, :2], unit)
+    heading = start[keep, 2] + np.arctan2(unit[:, 1], unit[:, 0])  # of the motion, world
+    x, y = start[keep, 0], start[keep, 1]
+    corridor = ((x > CORRIDOR["x"][0]) & (x < CORRIDOR["x"][1]) & (y > CORRIDOR["y"][0])
+                & (y < CORRIDOR["y"][1]) & (np.abs(np.sin(heading)) < np.sin(ALONG)))
+    length = length[keep]
+    return {place: (np.sum(weight[k] * error[k] * length[k]), np.sum(weight[k] * length[k] ** 2),
+                    np.sum(error[k] * length[k]), np.sum(length[k] ** 2), int(k.sum()))
+            for place, k in (("along the corridor", corridor), ("elsewhere", ~corridor),
+                             ("all", np.ones_like(corridor)))}
+
+
+def _ratio_with_error(numerator, denominator, rng):
+    """Σ numerator / Σ denominator over seeds, and its standard error from resampling them."""
+    pick = rng.integers(0, len(numerator), (1000, len(numerator)))
+    return (numerator.sum() / denominator.sum(),
+            float(np.std(numerator[pick].sum(1) / denominator[pick].sum(1))))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--row", type=int, default=4, help="row of bench/sensor_matrix.py (default: low-cost)")
+    ap.add_argument("--seeds", type=int, default=80)
+    ap.add_argument("--duration", type=float, default=120.0)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    name, row = list(ROWS.items())[args.row]
+    workdir = scratch_dir("match_scale_by_place")
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(run_seed, [(row, seed, args.duration, workdir)
+                                           for seed in range(1, args.seeds + 1)]))
+    rng = np.random.default_rng(0)
+    total_weight = sum(r["all"][1] for r in results)
+    cells = []
+    for place in ("along the corridor", "elsewhere", "all"):
+        sums = np.array([r[place] for r in results], float)  # (seeds, 5)
+        weighted, weighted_error = _ratio_with_error(sums[:, 0], sums[:, 1], rng)
+        plain, plain_error = _ratio_with_error(sums[:, 2], sums[:, 3], rng)
+        cells.append([place, int(sums[:, 4].sum()), f"{sums[:, 1].sum() / total_weight:.2f}",
+                      f"{100 * weighted:+.3f} ± {100 * weighted_error:.3f}",
+                      f"{100 * plain:+.3f} ± {100 * plain_error:.3f}"])
+    print(f"{name}: {args.seeds} seeds from 1, {args.duration:g} s each")
+    print(table(cells, ["matches", "count", "share of the weight", "scale − 1, weighted %",
+                        "scale − 1, unweighted %"]))
+
+
+if __name__ == "__main__":
+    main()
