@@ -23,11 +23,12 @@ Rows: the low-cost laser of bench/sensor_matrix.py (2 cm + 1 % of range, 12 m, 7
 no dropouts or mixed pixels, which only thin the scans), its noise in one scan of the pair
 only, two of the refinement's constants changed, a start 1 % long, constant-noise lasers,
 and the URG-04LX-like laser (started long, without the returns near its range limit, with
-a longer range). Rows 17-23: pairs along the office corridor instead of the route's
+a longer range). Rows 17-26: pairs along the office corridor instead of the route's
 (the laser on the corridor's centre line heading along it), where matches come out
 longest, with the reference's wall lines partly replaced by the simulator's walls
-(oracle rows: its residual origins or its normals on the true walls) and with the
-6-beam line fit a 1 cm laser gets.
+(oracle rows: its residual origins or its normals on the true walls, or the offsets of
+the returns on walls across the corridor mirrored or shuffled) and with the 6-beam line
+fit a 1 cm laser gets.
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
      [--rows N ...]
@@ -91,6 +92,10 @@ ROWS = [
      "true walls (oracle)", CONSTANT_5_5, (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across"}),
     ("  lines fitted over 6 beams (as for a 1 cm laser)", CONSTANT_5_5, (1.0, 0.0),
      {"pairs": "corridor", "fit": "narrow"}),
+    ("  those returns' offsets from their walls mirrored across the walls (oracle)", CONSTANT_5_5,
+     (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across mirrored"}),
+    ("  those returns' offsets from their walls shuffled among them (oracle)", CONSTANT_5_5,
+     (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across shuffled"}),
 ]
 
 
@@ -178,7 +183,7 @@ def _measure_row(job):
                 small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE)
             if options.get("oracle") and reference is not None:
                 reference = _on_true_walls(reference, options["oracle"], world, first,
-                                           _scan(ranges[0], model), true[0])
+                                           _scan(ranges[0], model), true[0], rng)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])
@@ -214,10 +219,12 @@ def _corridor_poses(world, count, rng):
     return np.column_stack([x, y, heading])
 
 
-def _on_true_walls(reference, which, world, pose, scan, true_ranges):
+def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
     """`reference` (of `scan`, taken at laser pose `pose`) with its anchors ("anchors":
     moved along the true wall's normal onto the wall; "returns across": only those that
-    are returns themselves, on walls facing along the laser's x axis) or its normals
+    are returns themselves, on walls facing along the laser's x axis; "... mirrored" or
+    "... shuffled": those returns' offsets from their walls mirrored across them, or
+    shuffled among them with `rng`) or its normals
     ("normals": the true wall's) taken from the simulator's walls: each reference point is found among the
     scan's points (from_points keeps them as they are), its beam's noise-free return gives
     the wall, the nearest segment its direction."""
@@ -244,9 +251,17 @@ def _on_true_walls(reference, which, world, pose, scan, true_ranges):
     if which == "normals":
         return dataclasses.replace(reference, normals=normal)
     offset = ((reference.anchors - wall_point) * normal).sum(1)
-    if which == "returns across":  # origins that are returns, on walls facing along x
-        offset *= np.all(reference.anchors == reference.points, axis=1) & (np.abs(normal[:, 0]) > 0.7)
-    return dataclasses.replace(reference, anchors=reference.anchors - offset[:, None] * normal)
+    if which == "anchors":
+        return dataclasses.replace(reference, anchors=reference.anchors - offset[:, None] * normal)
+    # Origins that are returns themselves, on walls facing along the laser's x axis: put
+    # on their walls, or their offsets from them mirrored or shuffled among them.
+    group = np.all(reference.anchors == reference.points, axis=1) & (np.abs(normal[:, 0]) > 0.7)
+    moved = offset * group
+    if which.endswith("mirrored"):
+        moved = 2.0 * moved
+    elif which.endswith("shuffled"):
+        moved[group] = offset[group] - rng.permutation(offset[group])
+    return dataclasses.replace(reference, anchors=reference.anchors - moved[:, None] * normal)
 
 
 def main():
