@@ -220,14 +220,18 @@ def _corridor_poses(world, count, rng):
 
 
 def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
-    """`reference` (of `scan`, taken at laser pose `pose`) with its anchors ("anchors":
-    moved along the true wall's normal onto the wall; "returns across": only those that
-    are returns themselves, on walls facing along the laser's x axis; "... mirrored" or
-    "... shuffled": those returns' offsets from their walls mirrored across them, or
-    shuffled among them with `rng`) or its normals
-    ("normals": the true wall's) taken from the simulator's walls: each reference point is found among the
-    scan's points (from_points keeps them as they are), its beam's noise-free return gives
-    the wall, the nearest segment its direction."""
+    """`reference` (of `scan`, taken at laser pose `pose`) with parts of it taken from the
+    simulator's walls, by `which`:
+
+      "normals"   its normals the true walls';
+      "anchors"   its residual origins moved along the true wall's normal onto the wall;
+      "returns across", "... mirrored", "... shuffled"   only the origins that are returns
+                  themselves, on walls facing along the laser's x axis: put on their walls,
+                  their offsets from them mirrored across them, or shuffled among them
+                  (with `rng`).
+
+    Each reference point is found among the scan's points (from_points keeps them as they
+    are); its beam's noise-free return gives the wall, the nearest segment its direction."""
     import dataclasses
 
     from sclam_ros.core import se2
@@ -244,9 +248,8 @@ def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
     along = np.clip(((world_point[:, None] - start) * edge).sum(-1) / (edge * edge).sum(-1), 0, 1)
     nearest = np.linalg.norm(world_point[:, None] - (start + along[..., None] * edge), axis=-1).argmin(1)
     direction = edge[0, nearest] / np.linalg.norm(edge[0, nearest], axis=1)[:, None]
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    normal = np.column_stack([-(c * direction[:, 1] - s * direction[:, 0]),
-                              c * direction[:, 0] + s * direction[:, 1]])  # laser frame
+    along_wall = se2.rotate_inverse(pose[2], direction)  # in the laser frame
+    normal = np.column_stack([-along_wall[:, 1], along_wall[:, 0]])
     normal *= np.sign((normal * reference.normals).sum(1))[:, None]
     if which == "normals":
         return dataclasses.replace(reference, normals=normal)

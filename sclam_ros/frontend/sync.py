@@ -355,9 +355,9 @@ class EncoderStream:
         return i + 2 < len(stamps) or not self._curved(i)
 
     def _curved(self, i: int) -> bool:
-        """Whether the angles between samples i and i + 1 are taken on the parabola: the
-        samples are further apart than config.curved_interval and sample i has one before it
-        in its segment."""
+        """Whether the angles between samples i and i + 1 are taken on a curve
+        (_off_line_curved), not the line: the samples are further apart than
+        config.curved_interval and sample i has one before it in its segment."""
         stamps = self._stamps
         return (stamps[i + 1] - stamps[i] > self.config.curved_interval
                 and i > 0 and self._segments[i - 1] == self._segments[i])
