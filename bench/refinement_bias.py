@@ -28,7 +28,9 @@ a longer range). Rows 17-26: pairs along the office corridor instead of the rout
 longest, with the reference's wall lines partly replaced by the simulator's walls
 (oracle rows: its residual origins or its normals on the true walls, or the offsets of
 the returns on walls across the corridor mirrored or shuffled) and with the 6-beam line
-fit a 1 cm laser gets.
+fit a 1 cm laser gets. Rows 27-30: those returns' origins left where the noise put them,
+and what else their own noise decides (where they are paired, their normals, the
+refinement's range-limit test) taken from the truth instead, one at a time and together.
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
      [--rows N ...]
@@ -96,6 +98,16 @@ ROWS = [
      (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across mirrored"}),
     ("  those returns' offsets from their walls shuffled among them (oracle)", CONSTANT_5_5,
      (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across shuffled"}),
+    # The origins left where the noise put them; what else a return's own noise decides
+    # about it put on the truth instead.
+    ("  those returns paired where their beams meet the true walls, origins left (oracle)",
+     CONSTANT_5_5, (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across paired"}),
+    ("  those returns' normals on the true walls, origins left (oracle)", CONSTANT_5_5, (1.0, 0.0),
+     {"pairs": "corridor", "oracle": "returns across normals"}),
+    ("  without the refinement's range-limit test (from the new scan's origin)", CONSTANT_5_5,
+     (1.0, 0.0), {"pairs": "corridor", "oracle": "unlimited"}),
+    ("  those three together (oracle)", CONSTANT_5_5, (1.0, 0.0),
+     {"pairs": "corridor", "oracle": "returns across paired normals unlimited"}),
 ]
 
 
@@ -228,11 +240,17 @@ def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
       "returns across", "... mirrored", "... shuffled"   only the origins that are returns
                   themselves, on walls facing along the laser's x axis: put on their walls,
                   their offsets from them mirrored across them, or shuffled among them
-                  (with `rng`).
+                  (with `rng`);
+      "returns across paired|normals|unlimited ..."   those returns' origins left where
+                  they are, and with each word: they are paired where their beams meet
+                  the true walls, their normals are the true walls', or the refinement
+                  does not test the range limit (as "unlimited" alone, for every pair).
 
     Each reference point is found among the scan's points (from_points keeps them as they
     are); its beam's noise-free return gives the wall, the nearest segment its direction."""
     import dataclasses
+
+    from scipy.spatial import cKDTree
 
     from sclam_ros.core import se2
     from sclam_ros.frontend.scan_matching import scan_to_points, valid_beams
@@ -253,12 +271,29 @@ def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
     normal *= np.sign((normal * reference.normals).sum(1))[:, None]
     if which == "normals":
         return dataclasses.replace(reference, normals=normal)
+    if which == "unlimited":
+        return dataclasses.replace(reference, usable_range=np.inf)
     offset = ((reference.anchors - wall_point) * normal).sum(1)
     if which == "anchors":
         return dataclasses.replace(reference, anchors=reference.anchors - offset[:, None] * normal)
     # Origins that are returns themselves, on walls facing along the laser's x axis: put
     # on their walls, or their offsets from them mirrored or shuffled among them.
     group = np.all(reference.anchors == reference.points, axis=1) & (np.abs(normal[:, 0]) > 0.7)
+    words = which.split()[2:]
+    if words and words[0] in ("paired", "normals", "unlimited"):
+        # Their origins left; their pairing positions (the KD-tree's points) or normals
+        # taken from the true walls, or no range-limit test.
+        changes = {}
+        if "paired" in words:
+            paired = reference.points.copy()
+            hit = group & np.all(np.isfinite(wall_point), axis=1)  # a true return in range
+            paired[hit] = wall_point[hit]
+            changes["tree"] = cKDTree(paired)
+        if "normals" in words:
+            changes["normals"] = np.where(group[:, None], normal, reference.normals)
+        if "unlimited" in words:
+            changes["usable_range"] = np.inf
+        return dataclasses.replace(reference, **changes)
     moved = offset * group
     if which.endswith("mirrored"):
         moved = 2.0 * moved
