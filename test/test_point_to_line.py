@@ -400,3 +400,28 @@ def test_the_small_object_rule_follows_the_judged_noise():
         for scan in _office_scans(noise):
             matcher._remember_reference(scan, scan_to_points(scan))
         assert matcher._small_objects == rule
+
+
+@pytest.mark.parametrize("fit_noise,range_noise", [(None, 0.01), (0.03, 0.03)])
+def test_refinement_does_not_depend_on_the_beam_order(fit_noise, range_noise):
+    """A scene mirrored across the laser's x axis, its returns in reversed order (so still
+    counter-clockwise), gives the mirrored motion and covariance. A decision that looked at
+    the next beam but not the previous one would turn every match the same way: a laser
+    yaw bias that no recording could reveal. (The six-beam fit of a 1 cm laser and the wide
+    fit of a 3 cm one, with its range-limit clearance.)"""
+    world = office_world()
+    rng = np.random.default_rng(5)
+    usable = 20.0 - point_to_line.CLEAR_OF_LIMIT * range_noise if fit_noise else np.inf
+    flip, flip_xy = np.array([1.0, -1.0, -1.0]), np.array([1.0, -1.0])
+    for start in ([6.0, 3.0, 0.3], [3.0, 7.75, 0.0], [12.0, 12.5, 2.0]):
+        motion = np.array([0.15, 0.01, 0.05])
+        first = scan_points(world, np.array(start), range_noise, rng)
+        second = scan_points(world, se2.compose(np.array(start), motion), range_noise, rng)
+        answers = []
+        for a, b, z0 in ((first, second, motion), (first[::-1] * flip_xy, second[::-1] * flip_xy, motion * flip)):
+            reference = point_to_line.ReferenceScan.from_points(a, fit_noise, usable, small_objects=True)
+            answers.append(point_to_line.refine_with_covariance(reference, b, z0))
+        (z, used, covariance), (z_mirrored, used_mirrored, covariance_mirrored) = answers
+        assert used > 100 and used_mirrored == used
+        np.testing.assert_allclose(z_mirrored * flip, z, atol=1e-9)
+        np.testing.assert_allclose(covariance_mirrored * np.outer(flip, flip), covariance, rtol=1e-6, atol=1e-15)
