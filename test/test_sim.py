@@ -14,7 +14,8 @@ from sclam_ros.sim.motion import Trajectory, TrueKinematics, twist_increment
 from sclam_ros.sim.robots import PRESETS
 from sclam_ros.sim.trajectory import simulate_trajectory
 from sclam_ros.sim.sensors import LaserModel
-from sclam_ros.sim.world import SCENES, cast_rays, distance_to_segments, office_world, outdoor_world
+from sclam_ros.sim.world import (MIRRORED, SCENES, cast_rays, distance_to_segments, office_world,
+                                  outdoor_world, scene_world)
 
 WORLD = office_world()
 
@@ -137,6 +138,25 @@ def test_roadmap_edges_are_clear_for_every_robot(scene):
     for node in world.nodes:
         assert world.neighbours(node), node
     assert set(world.open_nodes) <= set(world.nodes)
+
+
+@pytest.mark.parametrize("scene", sorted(SCENES))
+def test_a_mirrored_scene_is_seen_mirrored(scene):
+    """The scene reflected across its x axis: a laser at the reflected pose sees at the
+    reflected bearings exactly what it saw; the roadmap is reflected with it."""
+    world, mirror = scene_world(scene), scene_world(scene + MIRRORED)
+    rng = np.random.default_rng(2)
+    angles = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    for name in rng.choice(sorted(world.nodes), 5, replace=False):
+        x, y = world.nodes[name]
+        assert mirror.nodes[name] == (x, -y)
+        heading = rng.uniform(-np.pi, np.pi)
+        np.testing.assert_allclose(mirror.raycast(np.array([x, -y, -heading]), -angles, 20.0),
+                                   world.raycast(np.array([x, y, heading]), angles, 20.0), atol=1e-9)
+    assert mirror.edges == world.edges and mirror.open_nodes == world.open_nodes
+    assert mirror.inside_bounds(np.array([[x, -y] for x, y in world.nodes.values()])).all()
+    with pytest.raises(ValueError, match="unknown scene"):
+        scene_world("moon" + MIRRORED)
 
 
 def test_outdoor_scene_has_few_long_lines():

@@ -251,9 +251,23 @@ def outdoor_world() -> World:
 
 
 SCENES = {"office": office_world, "outdoor": outdoor_world}
+MIRRORED = "-mirrored"  # a scene's name with this suffix: that scene reflected (mirrored())
+
+
+def mirrored(world: World) -> World:
+    """`world` reflected across its x axis (y -> -y): every drive through it turns right
+    where it turned left. A bias that belongs to the drive's geometry changes sign with it;
+    one that belongs to the processing (a preference for one turning direction) does not."""
+    xmin, ymin, xmax, ymax = world.bounds
+    return World(np.asarray(world.segments, float) * [1.0, -1.0, 1.0, -1.0],
+                 {name: (x, -y) for name, (x, y) in world.nodes.items()}, list(world.edges),
+                 tuple(world.open_nodes), (xmin, -ymax, xmax, -ymin))
 
 
 def scene_world(name: str) -> World:
-    if name not in SCENES:
-        raise ValueError(f"unknown scene {name!r}; scenes: {', '.join(sorted(SCENES))}")
-    return SCENES[name]()
+    """The scene `name`, or with the MIRRORED suffix that scene mirrored."""
+    base = name[:-len(MIRRORED)] if name.endswith(MIRRORED) else name
+    if base not in SCENES:
+        raise ValueError(f"unknown scene {name!r}; scenes: {', '.join(sorted(SCENES))} "
+                         f"(each also as NAME{MIRRORED})")
+    return mirrored(SCENES[base]()) if base != name else SCENES[base]()
