@@ -27,6 +27,9 @@ Run: .venv/bin/python bench/sensor_matrix.py [--seeds 10] [--duration 120] [--jo
       scan matcher starts from is right; a bias that remains is not the guess's]
      [--outdoor-variant "without the trunks"|...: the outdoor scene's objects changed as in
       bench/outdoor_match_scale.py, one factor at a time]
+     [--mirrored: the scene and the robot reflected left for right (its wheel radii
+      swapped, its laser's y and yaw negated): a bias that belongs to the drive's geometry
+      changes sign, one that belongs to the processing does not]
 """
 from __future__ import annotations
 
@@ -229,6 +232,17 @@ def _standard_error(samples):
     return samples.std(axis=0, ddof=1) / math.sqrt(len(samples))
 
 
+def mirrored_row(row) -> dict:
+    """`row` (simulate keywords) with its scene and the PowerBot mirrored left for right."""
+    from sclam_ros.sim.robots import get_preset
+    from sclam_ros.sim.world import MIRRORED
+
+    true = get_preset("powerbot").true
+    return dict(row, scene=row.get("scene", "office") + MIRRORED, true_overrides=dict(
+        wheel_radius_left=true["wheel_radius_right"], wheel_radius_right=true["wheel_radius_left"],
+        laser_y=-true["laser_y"], laser_yaw=-true["laser_yaw"]))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
@@ -241,6 +255,8 @@ def main():
     ap.add_argument("--true-nominal", action="store_true",
                     help="start from the true calibration (the scan matcher's guess is right)")
     ap.add_argument("--save", type=Path, help="also write every seed's numbers to this JSON file")
+    ap.add_argument("--mirrored", action="store_true",
+                    help="the scene and the robot reflected left for right (see above)")
     ap.add_argument("--outdoor-variant", choices=OUTDOOR_VARIANTS,
                     help="the outdoor scene with its trunks reshaped or removed "
                          "(bench/outdoor_match_scale.py); the processes inherit it")
@@ -251,6 +267,8 @@ def main():
         ROWS.clear()
         ROWS.update(FACTOR_ROWS[args.factors])
     names = [n for i, n in enumerate(ROWS) if args.rows is None or i in args.rows]
+    if args.mirrored:
+        ROWS.update({n: mirrored_row(ROWS[n]) for n in names})
     workdir = scratch_dir("sclam_sensor_matrix_")
     jobs = [(number, name, ROWS[name], seed, args.duration, workdir, args.true_nominal)
             for number, name in enumerate(names) for seed in range(1, args.seeds + 1)]
@@ -263,7 +281,8 @@ def main():
             print(f"{r['name']} seed {r['seed']}: no calibration: {r['failed']}", file=sys.stderr)
     print(f"PowerBot, {args.seeds} seeds × {args.duration:.0f} s per row; errors against the "
           f"simulator's truth" + ("; the true calibration as nominal" if args.true_nominal else "")
-          + (f"; outdoor scene {args.outdoor_variant}" if args.outdoor_variant else ""))
+          + (f"; outdoor scene {args.outdoor_variant}" if args.outdoor_variant else "")
+          + ("; the scene and the robot mirrored" if args.mirrored else ""))
     print(table([row_cells(n, [r for r in results if r["name"] == n]) for n in names],
                 ["laser / scene", "calibrated", "mean error r_l r_r b %", "its standard error %",
                  "RMS error r_l r_r b %", "mean laser error x y mm / yaw °",
