@@ -233,11 +233,11 @@ def _standard_error(samples):
 
 
 def mirrored_row(row) -> dict:
-    """`row` (simulate keywords) with its scene and the PowerBot mirrored left for right."""
+    """`row` (simulate keywords) with its scene and its robot mirrored left for right."""
     from sclam_ros.sim.robots import get_preset
     from sclam_ros.sim.world import MIRRORED
 
-    true = get_preset("powerbot").true
+    true = get_preset(row.get("robot", "powerbot")).true
     return dict(row, scene=row.get("scene", "office") + MIRRORED, true_overrides=dict(
         wheel_radius_left=true["wheel_radius_right"], wheel_radius_right=true["wheel_radius_left"],
         laser_y=-true["laser_y"], laser_yaw=-true["laser_yaw"]))

@@ -270,4 +270,5 @@ def scene_world(name: str) -> World:
     if base not in SCENES:
         raise ValueError(f"unknown scene {name!r}; scenes: {', '.join(sorted(SCENES))} "
                          f"(each also as NAME{MIRRORED})")
-    return mirrored(SCENES[base]()) if base != name else SCENES[base]()
+    world = SCENES[base]()
+    return mirrored(world) if base != name else world
