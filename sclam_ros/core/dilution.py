@@ -43,6 +43,7 @@ import numpy as np
 
 from sclam_ros.core import kinematics
 from sclam_ros.core.params import CALIBRATION_KEYS
+from sclam_ros.core.solver import absorbed_trace
 
 
 # The correction is first order in noise²/signal²: applied where it moves no calibration
@@ -52,8 +53,6 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 # (197-210 mm) agrees with the square runs' (200-204 mm): there the residuals are not the
 # wheel noise the correction assumes.
 MAX_RELATIVE_SHIFT = 0.01
-# Rows per solve of the exact trace in WheelNoiseCorrection.observe (bounds its memory).
-TRACE_CHUNK = 256
 
 
 class WheelNoiseCorrection:
@@ -86,19 +85,12 @@ class WheelNoiseCorrection:
         """`level` from the odometry edges' rotation rows of the linear system at the
         solution (`system`, its factorisation `lu`): their whitened χ² over their
         redundancy (the rows less the share the poses absorb, tr(J H⁻¹ Jᵀ) over those
-        rows), at most 1. The trace is exact, from solves in chunks of rows: Hutchinson's
-        estimate (as solver.redundancy_by_factor's) scattered from −1054 to +707 against
-        exact values of 16-239 on outdoor drives of 210-340 rows."""
+        rows, solver.absorbed_trace), at most 1."""
         ranges = [(start, stop) for name, start, stop in system.row_ranges if name == "odometry"]
         if len(ranges) != 1 or (ranges[0][1] - ranges[0][0]) != 3 * len(self.edge_slopes):
             return
         rows = np.arange(ranges[0][0] + 2, ranges[0][1], 3)  # the rotation component
-        rotation = system.jacobian[rows]
-        absorbed = 0.0
-        for start in range(0, len(rows), TRACE_CHUNK):
-            chunk = rotation[start:start + TRACE_CHUNK]
-            chunk = chunk.toarray() if hasattr(chunk, "toarray") else np.asarray(chunk)
-            absorbed += float(np.sum(chunk * lu.solve(chunk.T).T))
+        absorbed = absorbed_trace(system.jacobian[rows], lu)
         redundancy = len(rows) - absorbed
         if redundancy > 0:
             chi2 = float(system.residual[rows] @ system.residual[rows])

@@ -498,26 +498,34 @@ def _inverse_columns(problem: Problem, blocks, lu):
     return cols, lu.solve(unit)
 
 
-def redundancy_by_factor(problem: Problem, values: Values, probes: int = 40, seed: int = 0):
+TRACE_CHUNK = 256  # Jacobian rows per block of solves (absorbed_trace)
+
+
+def absorbed_trace(rows, lu) -> float:
+    """tr(J H⁻¹ Jᵀ) of whitened Jacobian rows J (sparse or dense), `lu` H's factorisation:
+    the part of their expected χ² the variables absorb. Exact, from solves in chunks of
+    rows (one solve per row). Hutchinson's stochastic estimate with 40 probes is within
+    1 % indoors but scattered from −326 to +703 against exact values of 151-227 on an
+    outdoor drive: there the poses along a street are a long random walk of the odometry,
+    H⁻¹ couples them all, and the probes' cross terms swamp the trace."""
+    absorbed = 0.0
+    for start in range(0, rows.shape[0], TRACE_CHUNK):
+        chunk = rows[start:start + TRACE_CHUNK]
+        chunk = chunk.toarray() if hasattr(chunk, "toarray") else np.asarray(chunk)
+        absorbed += float(np.sum(chunk * lu.solve(chunk.T).T))
+    return absorbed
+
+
+def redundancy_by_factor(problem: Problem, values: Values):
     """Redundancy (observations minus the share of parameters each factor type determines).
 
     For variance component estimation: the expected χ² of factor group g at the optimum
-    is r_g = n_g − tr(H⁻¹ H_g). The traces are estimated with Hutchinson's estimator
-    (Rademacher probes through one sparse LU), exact in expectation; 40 probes estimate a
-    trace of ~10⁴ to about 1 %.
+    is r_g = n_g − tr(J_g H⁻¹ J_gᵀ) (absorbed_trace).
     """
-    system, hessian, lu = factorize_information(problem, values)
-    rng = np.random.default_rng(seed)
-    probe = rng.choice([-1.0, 1.0], size=(problem.layout.size, probes))
-    solved = lu.solve(probe)  # H⁻¹ v
-    # H_g = J_gᵀ J_g; vᵀ H⁻¹ H_g v = (J_g H⁻¹ v)ᵀ (J_g v).
-    jac = system.jacobian
+    system, _, lu = factorize_information(problem, values)
     traces = {}
     for name, start, stop in system.row_ranges:
-        jg = jac[start:stop]
-        traces[name] = traces.get(name, 0.0) + float(
-            np.mean(np.sum((jg @ solved) * (jg @ probe), axis=0))
-        )
+        traces[name] = traces.get(name, 0.0) + absorbed_trace(system.jacobian[start:stop], lu)
     out = {
         name: (stats["dim"] - traces[name], stats["chi2"])
         for name, stats in system.per_factor.items()
