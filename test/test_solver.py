@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from synthetic import make_graph
 
 from sclam_ros.core import factors, kinematics
@@ -7,6 +8,7 @@ from sclam_ros.core.graph import GraphInputs, initial_poses
 from sclam_ros.core.solver import (
     CauchyKernel,
     chain_correlated_covariance,
+    LinearSolver,
     Problem,
     Values,
     factorize_information,
@@ -122,6 +124,35 @@ def test_redundancy_is_exact_where_the_scan_matches_barely_see_along_the_street(
         exact = system.per_factor[name]["dim"] - np.trace(rows @ inverse @ rows.T)
         assert 0.0 <= redundancy[name][0] <= system.per_factor[name]["dim"]
         assert redundancy[name][0] == pytest.approx(exact, rel=1e-3), name
+
+
+@pytest.mark.parametrize("path", ["banded", "sparse LU", "dense"])
+def test_inverse_at_gives_the_inverse_on_the_pattern(path):
+    """LinearSolver.inverse_at against the dense inverse, on each of its paths: a chain of
+    poses with global columns (banded Cholesky + Schur), the same with a loop closure that
+    widens the band past MAX_BANDWIDTH (sparse LU), and a dense H (the online window)."""
+    rng = np.random.default_rng(4)
+    poses, globals_ = 60, 6
+    n = 3 * poses
+    rows = []
+    for i in range(poses - 1):
+        for _ in range(4):
+            row = np.zeros(n + globals_)
+            row[3 * i:3 * i + 6] = rng.normal(size=6)
+            row[n:] = 0.1 * rng.normal(size=globals_)
+            rows.append(row)
+    if path == "sparse LU":
+        row = np.zeros(n + globals_)
+        row[:3], row[n - 3:n] = rng.normal(size=3), rng.normal(size=3)
+        rows.append(row)
+    jacobian = sp.csr_matrix(np.array(rows))
+    hessian = (jacobian.T @ jacobian + sp.eye(n + globals_)).tocsc()
+    solver = LinearSolver(hessian.toarray() if path == "dense" else hessian, n)
+    assert (solver._lu is not None) == (path == "sparse LU")
+    pattern = hessian.tocoo()
+    exact = np.linalg.inv(hessian.toarray())[pattern.row, pattern.col]
+    np.testing.assert_allclose(solver.inverse_at(pattern.row, pattern.col), exact,
+                               rtol=1e-8, atol=1e-12)
 
 
 def test_robust_kernel_resists_outlier_matches():
