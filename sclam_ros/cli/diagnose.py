@@ -87,10 +87,15 @@ def format_summary(report) -> str:
         lines += [f"  {u['component']} vs {u['regressor']}: strength {u['strength']:.2f}"
                   for u in report["unexplained"]]
     else:
-        lines.append("no unexplained structure")
+        lines.append("no unexplained structure in the residual tests")
     for cause in report.get("unexplained_cause", [])[:1]:
+        # The naming test fits each regressor as an additive and as a scale error
+        # (diagnosis/structure.py), so it can find structure the tests above do not.
+        found = "" if report["unexplained"] else (
+            " (found by the naming test, which fits each regressor as an additive and as a "
+            "scale error)")
         lines.append(f"unexplained odometry structure named by {cause['regressor']} "
-                     f"({cause['fraction_explained']:.0%} of it explained)")
+                     f"({cause['fraction_explained']:.0%} of it explained){found}")
     lines += [f"warning: {w}" for w in report.get("warnings", [])]
     return "\n".join(lines)
 
