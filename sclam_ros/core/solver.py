@@ -12,6 +12,7 @@ held fixed (its columns are removed), which is the standard choice for a pose gr
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -291,8 +292,8 @@ class Problem:
         return total + self.cost_correction(values)[0]
 
 
-# Unit columns per block of solves where LinearSolver.inverse_at cannot use the band
-# (bounds the memory of each block).
+# Unit columns per block of solves on LinearSolver.inverse_at's sparse-LU path (bounds the
+# memory of each block).
 TRACE_CHUNK = 256
 
 
@@ -356,39 +357,53 @@ class LinearSolver:
     def inverse_at(self, rows, cols) -> np.ndarray:
         """(H⁻¹)[rows[k], cols[k]] for index pairs within H's own pattern (the band of the
         poses, the global columns): exact, and linear in the recording's length on the
-        banded path, where H⁻¹ itself would be dense. The other paths solve for the unit
-        columns needed (dense H: the online window; the sparse LU: wide bands)."""
+        banded path, where H⁻¹ itself would be dense. The dense path (the online window)
+        inverts H; the sparse LU (wide bands) solves for the unit columns needed."""
         rows, cols = np.asarray(rows, int), np.asarray(cols, int)
-        if self._dense is not None or self._lu is not None:
+        if self._dense is not None:
+            return self._dense_inverse[rows, cols]
+        if self._lu is not None:
             out = np.empty(len(rows))
-            size = self._hessian.shape[0] if self._lu is not None else len(self._dense[0])
             needed = np.unique(cols)
             for start in range(0, len(needed), TRACE_CHUNK):
                 chunk = needed[start:start + TRACE_CHUNK]
-                unit = np.zeros((size, len(chunk)))
+                unit = np.zeros((self._hessian.shape[0], len(chunk)))
                 unit[chunk, np.arange(len(chunk))] = 1.0
                 solved = self.solve(unit)
                 take = np.isin(cols, chunk)
                 out[take] = solved[rows[take], np.searchsorted(chunk, cols[take])]
             return out
-        # H = [[A, B], [Bᵀ, C]], A banded, W = A⁻¹B, S = C − BᵀW:
-        # H⁻¹ = [[A⁻¹ + W S⁻¹ Wᵀ, −W S⁻¹], [−S⁻¹ Wᵀ, S⁻¹]].
-        band = _banded_inverse(self._chol)  # band[d, i] = (A⁻¹)[i, i + d]
+        band, w_s, schur_inv = self._banded_inverse_parts
         n = self.n
         lo, hi = np.minimum(rows, cols), np.maximum(rows, cols)
         out = np.zeros(len(rows))
         poses = hi < n
         out[poses] = band[hi[poses] - lo[poses], lo[poses]]
-        if self._schur is None:
+        if schur_inv is None:
             return out
-        schur_inv = scipy.linalg.cho_solve(self._schur, np.eye(len(self._schur[0])))
-        w_s = self._a_inv_b @ schur_inv  # W S⁻¹ (n, g)
         out[poses] += np.einsum("kg,kg->k", w_s[lo[poses]], self._a_inv_b[hi[poses]])
         mixed = (lo < n) & (hi >= n)
         out[mixed] = -w_s[lo[mixed], hi[mixed] - n]
         both = lo >= n
         out[both] = schur_inv[lo[both] - n, hi[both] - n]
         return out
+
+    # Computed once per factorisation: redundancy_by_factor asks inverse_at once per
+    # factor group, every variance-component round.
+    @functools.cached_property
+    def _dense_inverse(self) -> np.ndarray:
+        return scipy.linalg.cho_solve(self._dense, np.eye(len(self._dense[0])))
+
+    @functools.cached_property
+    def _banded_inverse_parts(self):
+        """(band of A⁻¹, W S⁻¹, S⁻¹) of H = [[A, B], [Bᵀ, C]], A banded, W = A⁻¹B,
+        S = C − BᵀW (the last two None without globals), from which
+        H⁻¹ = [[A⁻¹ + W S⁻¹ Wᵀ, −W S⁻¹], [−S⁻¹ Wᵀ, S⁻¹]]."""
+        band = _banded_inverse(self._chol)  # band[d, i] = (A⁻¹)[i, i + d]
+        if self._schur is None:
+            return band, None, None
+        schur_inv = scipy.linalg.cho_solve(self._schur, np.eye(len(self._schur[0])))
+        return band, self._a_inv_b @ schur_inv, schur_inv
 
     def _solve_once(self, rhs):
         top, bottom = rhs[: self.n], rhs[self.n :]
