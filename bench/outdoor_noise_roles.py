@@ -18,13 +18,12 @@ the noise-free returns of the same scan in one role at a time:
     kept): what the rest of the pipeline (odometry, graph) makes of perfect matches;
   - matches mirrored about the truth: z' = 2·z_true − z, the same errors with their sign
     turned: a bias of the matches flips, one made by the graph would not;
-  - pairs gated along the line: a new point is paired with its nearest anchor when it lies
-    in an ellipse around it, MAX_PAIR_DISTANCE across the anchor's line and ALONG_REACH ×
-    the beams' spacing on the surface there along it (at least MAX_PAIR_DISTANCE, at most
-    ALONG_CAP), instead of within MAX_PAIR_DISTANCE of the anchor (a circle): where the
-    beams are sparse on the surface, whether a point between two anchors reaches one
-    otherwise depends on that anchor's own range noise. On references whose anchors are
-    their own returns (lines fitted over 6 beams), as the outdoor laser's;
+  - pairs within 15 cm (a circle): a new point is paired with its nearest reference
+    return when it lies within MAX_PAIR_DISTANCE of it, instead of in the ellipse along
+    the return's line the product uses (point_to_line.ALONG_LINE): where the beams are
+    sparse on the surface, whether a point between two returns reaches one then depends
+    on that return's own range noise. On references whose returns are their own anchors
+    (lines fitted over 6 beams), as the outdoor laser's;
   - matches and wheel increments = the truth: as "matches = the true motion", and each
     odometry edge's wheel increments replaced by those that drive the true motion between
     its two stamps (one arc): what the graph makes of odometry without slip noise;
@@ -80,6 +79,8 @@ Run: .venv/bin/python bench/outdoor_noise_roles.py [--seeds 20] [--duration 120]
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -95,7 +96,7 @@ OUTDOOR_NAME = "outdoor, default laser"
 VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "reference anchors noise-free", "pairing at the true motion",
             "matches = the true motion", "matches mirrored about the truth",
-            "pairs gated along the line", "matches and wheel increments = the truth",
+            "pairs within 15 cm (a circle)", "matches and wheel increments = the truth",
             "reference anchors with fresh noise", "reference anchors with their noise mirrored",
             "reference lines fitted to the noise-free returns",
             "reference returns kept by the noise-free returns' tests",
@@ -105,9 +106,6 @@ VARIANTS = ("as recorded", "new scan noise-free", "reference noise-free",
             "both: reference noise-free but its anchors, confirmed against the truth",
             "refinement confirmed against the odometry's prediction")
 TRUE_MATCHES = (VARIANTS[5], VARIANTS[8])
-ALONG_REACH = 0.6  # × the beams' spacing on the surface at the anchor
-ALONG_CAP = 1.0  # m
-MIN_COS_INCIDENCE = 0.2  # the spacing at grazing incidence is taken as at 78°
 
 
 class _Twin:
@@ -224,10 +222,11 @@ def _line_normals(points):
     return ptl._line_fit(points, neighbours)[0]
 
 
-def _kept_as(clean_reference, clean, noisy, usable_range):
+def _kept_as(clean_reference, clean, noisy, usable_range, beam_spacing):
     """A reference of the recorded returns `noisy` (their own anchors, their lines fitted
-    over NORMAL_NEIGHBOURS of them) keeping the returns `clean_reference` (made from the
-    noise-free twin `clean` of the same beams) keeps; None where that is None."""
+    over NORMAL_NEIGHBOURS of them, paired along them where `clean_reference` is) keeping
+    the returns `clean_reference` (made from the noise-free twin `clean` of the same beams)
+    keeps; None where that is None."""
     from scipy.spatial import cKDTree
 
     from sclam_ros.frontend import point_to_line as ptl
@@ -235,8 +234,10 @@ def _kept_as(clean_reference, clean, noisy, usable_range):
     if clean_reference is None:
         return None
     kept = cKDTree(clean).query(clean_reference.points)[1]
-    return ptl.ReferenceScan(noisy[kept], _line_normals(noisy)[kept], cKDTree(noisy[kept]),
-                             noisy[kept], usable_range)
+    points, normals = noisy[kept], _line_normals(noisy)[kept]
+    reach = None if clean_reference.reach is None else ptl._along_reach(points, normals,
+                                                                         beam_spacing)
+    return ptl.ReferenceScan(points, normals, cKDTree(points), points, usable_range, reach)
 
 
 def _patch(variant, twin):
@@ -248,7 +249,8 @@ def _patch(variant, twin):
     from sclam_ros.frontend import scan_matching
 
     add_scan, confirmed = ptl.RefinedScanMatcher.add_scan, ptl._confirmed
-    from_points, refine = ptl.ReferenceScan.from_points.__func__, ptl.refine_with_covariance
+    original_from_points = ptl.ReferenceScan.from_points.__func__
+    refine = ptl.refine_with_covariance
     match = scan_matching.ScanMatcher.add_scan
 
     def matcher_add_scan(matcher, scan, odometry_guess=None, points=None):
@@ -270,8 +272,10 @@ def _patch(variant, twin):
             out = (out[0], z, out[2])
         return out
 
-    def reference_from_points(cls, points, noise=None, usable_range=np.inf, small_objects=False):
+    def reference_from_points(cls, points, noise=None, usable_range=np.inf, small_objects=False,
+                              beam_spacing=None):
         clean = twin.clean_points[:, :2]
+        from_points = functools.partial(original_from_points, beam_spacing=beam_spacing)
         if variant == VARIANTS[2]:
             return from_points(cls, clean, noise, usable_range, small_objects)
         if variant in (VARIANTS[16], VARIANTS[17]):
@@ -282,7 +286,7 @@ def _patch(variant, twin):
             return reference
         if variant == VARIANTS[12]:
             return _kept_as(from_points(cls, clean, noise, usable_range, small_objects),
-                            clean, np.asarray(points, float)[:, :2], usable_range)
+                            clean, np.asarray(points, float)[:, :2], usable_range, beam_spacing)
         reference = from_points(cls, points, noise, usable_range, small_objects)
         if reference is None or variant not in (VARIANTS[3], VARIANTS[9], VARIANTS[10],
                                                 VARIANTS[11]):
@@ -324,41 +328,17 @@ def _patch(variant, twin):
         c, s = math.cos(z_true[2]), math.sin(z_true[2])
         # the noise-free twin of `points`: the scan being matched is the one just added
         at_truth = twin.clean_points[:, :2] @ np.array([[c, s], [-s, c]]) + z_true[:2]
-        dist, line = reference.tree.query(at_truth, distance_upper_bound=ptl.MAX_PAIR_DISTANCE)
-        ok = np.isfinite(dist)
+        ok, line = ptl.pairs(reference, at_truth, z_true[:2])
         if np.count_nonzero(ok) < 20:
             return np.array(z0, float), 0, None
         q, line = np.asarray(points, float)[ok, :2], line[ok]
         return _refined(q, z0, lambda z, turned: (np.ones(len(q), bool), line), reference)
 
-    def refine_gated_along_line(reference, points, z0):
-        """refine_with_covariance with each point paired with its nearest anchor when it lies
-        in the anchor's ellipse (MAX_PAIR_DISTANCE across its line, `reach` along it).
-        Where the reference's anchors are fitted lines (a noisy laser's wide fit), as
-        recorded."""
-        if reference is None or not np.array_equal(reference.anchors, reference.points):
-            return refine(reference, points, z0)
-        anchor, normal = reference.anchors, reference.normals
-        distance = np.hypot(anchor[:, 0], anchor[:, 1])
-        cos_incidence = np.abs(np.sum(normal * anchor, axis=1)) / np.maximum(distance, 1e-9)
-        reach = np.clip(ALONG_REACH * distance * twin.beam_spacing
-                        / np.maximum(cos_incidence, MIN_COS_INCIDENCE),
-                        ptl.MAX_PAIR_DISTANCE, ALONG_CAP)
-        q = np.asarray(points, float)[:, :2]
-
-        def pairs(z, turned):
-            moved = turned + z[:2]
-            dist, line = reference.tree.query(moved, distance_upper_bound=reach.max())
-            ok = np.isfinite(dist)
-            line = np.where(ok, line, 0)
-            offset = moved - anchor[line]
-            across = np.abs(np.sum(normal[line] * offset, axis=1))
-            along = np.abs(normal[line, 1] * offset[:, 0] - normal[line, 0] * offset[:, 1])
-            ok &= (along / reach[line]) ** 2 + (across / ptl.MAX_PAIR_DISTANCE) ** 2 <= 1.0
-            ok &= np.hypot(*(anchor[line] - z[:2]).T) <= reference.usable_range
-            return ok, line
-
-        return _refined(q, z0, pairs, reference)
+    def refine_within_circle(reference, points, z0):
+        """refine_with_covariance pairing within MAX_PAIR_DISTANCE of each return."""
+        if reference is not None:
+            reference = dataclasses.replace(reference, reach=None)
+        return refine(reference, points, z0)
 
     scan_matching.ScanMatcher.add_scan = matcher_add_scan
     ptl.RefinedScanMatcher.add_scan = refined_add_scan
@@ -367,7 +347,7 @@ def _patch(variant, twin):
     if variant == VARIANTS[4]:
         ptl.refine_with_covariance = refine_paired_at_truth
     if variant == VARIANTS[7]:
-        ptl.refine_with_covariance = refine_gated_along_line
+        ptl.refine_with_covariance = refine_within_circle
 
 
 def run_one(job):

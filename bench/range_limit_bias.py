@@ -153,9 +153,11 @@ def _laser_seed(job):
                     earlier[true[0] > model.range_max - variant["oracle"] * noise] = np.inf
                 if "ends" in variant:
                     earlier[near_end < variant["ends"]] = np.inf
+                earlier_scan = scan(earlier)
                 reference = point_to_line.ReferenceScan.from_points(
-                    scan_to_points(scan(earlier)), None if variant.get("narrow") else fit_noise,
-                    usable if variant.get("clearance", True) else np.inf)
+                    scan_to_points(earlier_scan), None if variant.get("narrow") else fit_noise,
+                    usable if variant.get("clearance", True) else np.inf,
+                    beam_spacing=abs(earlier_scan.angle_increment))
                 z, used, covariance = point_to_line.refine_with_covariance(
                     reference, scan_to_points(scan(later))[:, :2], z_true)
                 if not used:

@@ -190,9 +190,11 @@ def _measure_row(job):
             ranges = _measured(true, model, which, rng)
             if clear_of_limit:
                 ranges[ranges > model.range_max - clear_of_limit * noise] = np.inf
+            earlier_scan = _scan(ranges[0], model)
             reference = point_to_line.ReferenceScan.from_points(
-                scan_to_points(_scan(ranges[0], model)), fit_noise, usable_range,
-                small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE)
+                scan_to_points(earlier_scan), fit_noise, usable_range,
+                small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE,
+                beam_spacing=abs(earlier_scan.angle_increment))
             if options.get("oracle") and reference is not None:
                 reference = _on_true_walls(reference, options["oracle"], world, first,
                                            _scan(ranges[0], model), true[0], rng)

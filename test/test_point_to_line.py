@@ -425,3 +425,52 @@ def test_refinement_does_not_depend_on_the_beam_order(fit_noise, range_noise):
         assert used > 100 and used_mirrored == used
         np.testing.assert_allclose(z_mirrored * flip, z, atol=1e-9)
         np.testing.assert_allclose(covariance_mirrored * np.outer(flip, flip), covariance, rtol=1e-6, atol=1e-15)
+
+
+def _oblique_wall(spacing, first_bearing, count, offset=0.0):
+    """Returns of the wall y = 8 m (normal +y) on beams `spacing` rad apart from
+    `first_bearing`, beam k at first_bearing + (k + offset)·spacing: seen at a glancing
+    angle, the beams hit it tens of cm apart."""
+    bearing = first_bearing + (np.arange(count) + offset) * spacing
+    return np.column_stack([8.0 / np.tan(bearing), np.full(count, 8.0)])
+
+
+def test_pairs_along_a_sparsely_sampled_wall_reach_between_its_returns():
+    """A new point halfway between two reference returns on a wall seen at a glancing angle
+    (its returns 0.3-1.9 m apart) lies more than MAX_PAIR_DISTANCE from both: within a circle
+    it is paired only if a return's own noise happens to bring it nearer. Gated along the
+    wall by the beams' spacing there (ALONG_LINE) it is paired, and across the wall the gate
+    stays MAX_PAIR_DISTANCE."""
+    spacing = np.radians(1.0)
+    reference_points = _oblique_wall(spacing, np.radians(16.0), 27)
+    halfway = _oblique_wall(spacing, np.radians(16.0), 26, offset=0.5)
+    gaps = np.hypot(*np.diff(reference_points, axis=0).T)
+    assert gaps.min() > 2 * point_to_line.MAX_PAIR_DISTANCE
+    circle = point_to_line.ReferenceScan.from_points(reference_points)
+    ellipse = point_to_line.ReferenceScan.from_points(reference_points, beam_spacing=spacing)
+    assert circle.reach is None
+    z0 = np.zeros(3)
+    assert point_to_line.refine(circle, halfway, z0)[1] < 20  # too few pairs: not refined
+    z, used = point_to_line.refine(ellipse, halfway, z0)
+    assert used >= 20 and np.allclose(z[1:], 0.0, atol=1e-6)
+    # Off the wall by more than MAX_PAIR_DISTANCE: not paired, however sparse the beams.
+    off_wall = halfway + [0.0, 1.2 * point_to_line.MAX_PAIR_DISTANCE]
+    assert point_to_line.refine(ellipse, off_wall, z0)[1] == 0
+
+
+def test_pairing_along_lines_changes_nothing_where_the_beams_are_dense():
+    """Near walls (beams a few cm apart) the ellipse is the circle: the same motion."""
+    world = office_world()
+    rng = np.random.default_rng(7)
+    start = np.array([6.0, 3.0, 0.3])
+    motion = np.array([0.03, 0.01, 0.05])
+    points = scan_points(world, start, 0.01, rng)
+    new = scan_points(world, se2.compose(start, motion), 0.01, rng)
+    near = np.hypot(points[:, 0], points[:, 1]) < 3.0
+    near_new = np.hypot(new[:, 0], new[:, 1]) < 3.0
+    circle = point_to_line.ReferenceScan.from_points(points[near])
+    ellipse = point_to_line.ReferenceScan.from_points(points[near], beam_spacing=np.radians(1.0))
+    assert np.all(ellipse.reach == point_to_line.MAX_PAIR_DISTANCE)
+    z_circle, _ = point_to_line.refine(circle, new[near_new], motion + 0.01)
+    z_ellipse, _ = point_to_line.refine(ellipse, new[near_new], motion + 0.01)
+    assert np.allclose(z_circle, z_ellipse, atol=1e-9)
