@@ -132,7 +132,7 @@ def run_row(job):
     pool process runs several rows)."""
     from sclam_ros.frontend import point_to_line
 
-    constants = {k: v for k, v in job[3].items() if hasattr(point_to_line, k)}
+    constants = {k: v for k, v in job[3].items() if k.isupper() and hasattr(point_to_line, k)}
     saved = {k: getattr(point_to_line, k) for k in constants}
     try:
         for name, value in constants.items():
