@@ -1,7 +1,7 @@
 """Where the outdoor row's bias comes from (or another sensor-matrix row's): the range noise.
 
-The sensor matrix's outdoor row calibrates the radii and base about 0.15-0.25 % large, and
-without range noise it does not (`bench/sensor_matrix.py --factors outdoor`). Here each
+The range noise is what moves the sensor matrix's outdoor row away from the truth: without
+it the radii and base are right (`bench/sensor_matrix.py --factors outdoor`). Here each
 seed is simulated twice with the same drive, the same random draws and the same scene:
 once as the matrix does (1 cm range noise) and once without range noise. The noisy
 recording is calibrated with its scan-match refinement (frontend/point_to_line.py) handed
