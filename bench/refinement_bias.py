@@ -197,7 +197,7 @@ def _measure_row(job):
                 beam_spacing=abs(earlier_scan.angle_increment))
             if options.get("oracle") and reference is not None:
                 reference = _on_true_walls(reference, options["oracle"], world, first,
-                                           _scan(ranges[0], model), true[0], rng)
+                                           earlier_scan, true[0], rng)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])
