@@ -65,6 +65,13 @@ FOLDS = 5
 # half-route floor of test_diagnose_library lost its held-out gain (+0.045 ± 0.016 →
 # −0.000 ± 0.018 nats/edge) and a 90 s sweep run (scan_motion seed 10) took on
 # noise_vs_acceleration as well. Neither count is better; 5 stays.
+# Noise effects scored on shorter edges than the calibration's (merged every 0.2 s
+# against 0.5 s, the fits left on the calibration's; the same floor cut into more edges
+# gives more independent draws of the slip) were tried with bench/diagnose_effects.py: on
+# one room's carpet the likelihood ratios rose (seeds 1-5: 23-42 against 14.5-39) and
+# seed 5's region overlap went 0.75 → 0.99, but seeds 1 and 3 went 0.88 / 0.94 → 0.78 /
+# 0.80 (the metres by a door, crossed slowly, fell on either side), and lateral_slip's
+# seed 3 took noise_vs_turn_rate (LR 7.7 against 6.4). Not adopted.
 NOISE_FOLD_BLOCKS = 4
 NOISE_FOLDS = 5
 
