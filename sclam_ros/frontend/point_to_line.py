@@ -201,41 +201,53 @@ class ReferenceScan:
         points = np.asarray(points, float)[:, :2]
         if len(points) < NORMAL_NEIGHBOURS + 1:
             return None
-        tree = cKDTree(points)
-        wide = noise is not None
-        dist, idx = tree.query(points, min(WIDE_NEIGHBOURS if wide else NORMAL_NEIGHBOURS,
-                                           len(points)))
-        anchors = points
-        if wide:
-            near = (np.arange(dist.shape[1]) < NORMAL_NEIGHBOURS) | (dist <= NORMAL_RADIUS)
-            normals, across, along, centres = _line_fit(points, idx, near)
-            straight = (across < MAX_LINE_SPREAD) | (
-                (across < WIDE_STRAIGHTNESS * along) & (across < WIDE_NOISE_SPREAD * noise))
-            dense = _densely_sampled(points, usable_range)
-            on_line = dense & ((dist <= NORMAL_RADIUS).sum(axis=1) >= ANCHOR_NEIGHBOURS) & (
-                across < ANCHOR_SPREAD * noise)
-            # A return is its own residual origin only where its neighbours say the wall is
-            # sparse. Where they say it is dense but its own neighbourhood fails the anchor's
-            # tests (a gap, the range limit's cut, its own noise), it is not used.
-            straight &= on_line | ~dense
-            anchors = np.where(on_line[:, None], centres, points)
-            # An anchored line is clear of the limit by _densely_sampled's account.
-            clear = on_line | _neighbours_within(points, usable_range)
-        else:
-            normals, across, along, _ = _line_fit(points, idx)
-            straight = across < MAX_LINE_SPREAD
-            if small_objects:
-                straight &= _object_extent(points) >= SMALL_OBJECT
-            clear = _neighbours_within(points, usable_range)
-        keep = straight & (along > 0) & clear
+        normals, anchors, keep = line_decisions(points, noise, usable_range, small_objects)
+        return cls.of_kept(points, normals, anchors, keep, usable_range,
+                           beam_spacing if noise is None else None)
+
+    @classmethod
+    def of_kept(cls, points, normals, anchors, keep, usable_range=np.inf, beam_spacing=None):
+        """The ReferenceScan of the points where `keep` (line_decisions' answer), or None
+        if fewer than 10 are; beam_spacing (rad): pair along the lines (ALONG_LINE)."""
         if keep.sum() < 10:
             return None
         kept_points = points[keep]
-        reach = None
-        if beam_spacing is not None and not wide:
-            reach = _along_reach(kept_points, normals[keep], beam_spacing)
+        reach = None if beam_spacing is None else _along_reach(kept_points, normals[keep],
+                                                               beam_spacing)
         return cls(kept_points, normals[keep], cKDTree(kept_points), anchors[keep], usable_range,
                    reach)
+
+
+def line_decisions(points, noise=None, usable_range=np.inf, small_objects=False):
+    """(normals (N, 2), residual origins (N, 2), keep (N,) bool) of each of the scan's points
+    (N ≥ NORMAL_NEIGHBOURS + 1, beam order), as ReferenceScan.from_points describes."""
+    tree = cKDTree(points)
+    wide = noise is not None
+    dist, idx = tree.query(points, min(WIDE_NEIGHBOURS if wide else NORMAL_NEIGHBOURS,
+                                       len(points)))
+    anchors = points
+    if wide:
+        near = (np.arange(dist.shape[1]) < NORMAL_NEIGHBOURS) | (dist <= NORMAL_RADIUS)
+        normals, across, along, centres = _line_fit(points, idx, near)
+        straight = (across < MAX_LINE_SPREAD) | (
+            (across < WIDE_STRAIGHTNESS * along) & (across < WIDE_NOISE_SPREAD * noise))
+        dense = _densely_sampled(points, usable_range)
+        on_line = dense & ((dist <= NORMAL_RADIUS).sum(axis=1) >= ANCHOR_NEIGHBOURS) & (
+            across < ANCHOR_SPREAD * noise)
+        # A return is its own residual origin only where its neighbours say the wall is
+        # sparse. Where they say it is dense but its own neighbourhood fails the anchor's
+        # tests (a gap, the range limit's cut, its own noise), it is not used.
+        straight &= on_line | ~dense
+        anchors = np.where(on_line[:, None], centres, points)
+        # An anchored line is clear of the limit by _densely_sampled's account.
+        clear = on_line | _neighbours_within(points, usable_range)
+    else:
+        normals, across, along, _ = _line_fit(points, idx)
+        straight = across < MAX_LINE_SPREAD
+        if small_objects:
+            straight &= _object_extent(points) >= SMALL_OBJECT
+        clear = _neighbours_within(points, usable_range)
+    return normals, anchors, straight & (along > 0) & clear
 
 
 def _along_reach(points, normals, beam_spacing):
