@@ -31,6 +31,7 @@ the returns on walls across the corridor mirrored or shuffled) and with the 6-be
 fit a 1 cm laser gets. Rows 27-30: those returns' origins left where the noise put them,
 and what else their own noise decides (where they are paired, their normals, the
 refinement's range-limit test) taken from the truth instead, one at a time and together.
+Rows 31-32: which returns the reference keeps decided on the noise-free returns.
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
      [--rows N ...]
@@ -108,6 +109,12 @@ ROWS = [
      (1.0, 0.0), {"pairs": "corridor", "oracle": "unlimited"}),
     ("  those three together (oracle)", CONSTANT_5_5, (1.0, 0.0),
      {"pairs": "corridor", "oracle": "returns across paired normals unlimited"}),
+    # Which returns are kept (on a line, straight, clear of the range limit) decided on
+    # the same beams' noise-free returns; their normals and origins as the noise put them.
+    ("  the returns kept that the noise-free scan would keep (oracle)", CONSTANT_5_5, (1.0, 0.0),
+     {"pairs": "corridor", "oracle": "kept"}),
+    ("low-cost along the corridor, the returns kept that the noise-free scan would keep (oracle)",
+     LOW_COST, (1.0, 1.0), {"pairs": "corridor", "oracle": "kept"}),
 ]
 
 
@@ -195,7 +202,9 @@ def _measure_row(job):
                 scan_to_points(earlier_scan), fit_noise, usable_range,
                 small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE,
                 beam_spacing=abs(earlier_scan.angle_increment))
-            if options.get("oracle") and reference is not None:
+            if options.get("oracle") == "kept" and reference is not None:
+                reference = _kept_as_noise_free(earlier_scan, true[0], fit_noise, usable_range)
+            elif options.get("oracle") and reference is not None:
                 reference = _on_true_walls(reference, options["oracle"], world, first,
                                            earlier_scan, true[0], rng)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
@@ -231,6 +240,22 @@ def _corridor_poses(world, count, rng):
     y = corridor[0, 1] + rng.normal(0.0, 0.2, count)
     heading = rng.choice([0.0, np.pi], count) + rng.normal(0.0, np.radians(2.0), count)
     return np.column_stack([x, y, heading])
+
+
+def _kept_as_noise_free(scan, true_ranges, fit_noise, usable_range):
+    """The reference of `scan` (a noisy laser's: the wide fit) with the returns kept that
+    the same beams' noise-free returns `true_ranges` would keep (oracle); their normals
+    and residual origins from the noisy returns."""
+    from sclam_ros.frontend import point_to_line
+    from sclam_ros.frontend.scan_matching import scan_to_points, valid_beams
+
+    beams = np.flatnonzero(valid_beams(scan))  # scan_to_points' points, in order
+    points = scan_to_points(scan)[:, :2]
+    angle = scan.angles()[beams]
+    noise_free = true_ranges[beams, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    normals, anchors, _ = point_to_line.line_decisions(points, fit_noise, usable_range)
+    keep = point_to_line.line_decisions(noise_free, fit_noise, usable_range)[2]
+    return point_to_line.ReferenceScan.of_kept(points, normals, anchors, keep, usable_range)
 
 
 def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
