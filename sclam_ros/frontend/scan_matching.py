@@ -124,7 +124,7 @@ class NoiseModel:
 
     The least-squares fit of |e| gives (1.12 mm, 0.36 mm/m, 1.25 mm/rad; 0.24 mrad,
     0.36 mrad/m, 0.41 mrad/rad) with χ²/DoF 1.09 / 1.01 / 1.06; under the defaults below
-    χ²/DoF is 1.08 / 1.00 / 1.04. Where a pair of scans fixes the motion less well
+    χ²/DoF is 1.08 / 1.00 / 1.02. Where a pair of scans fixes the motion less well
     (noisier lasers, fewer walls) the refinement's own covariance is added to this model
     (point_to_line.RefinedScanMatcher), and the calibration rescales the laser edges'
     noise from the residuals of each recording (variance components), so the model's
@@ -180,7 +180,7 @@ class ScanMatcherConfig:
     # moves z anyway, so KISS-ICP only has to land in its basin: measured after refinement
     # (bench/scan_matching_accuracy.py, 300 s): with 1e-3, bias, σ and p99 of z equal
     # those with 1e-4 to 0.03 mm (table 1), a guess 5 % off leaks into z's scale by at most
-    # 0.002 % (table 3), and a scan takes a third less time (~3 ms of the node's 40 Hz budget).
+    # 0.004 % (table 3), and a scan takes a fifth less time (4.1 against 5.3 ms, p50).
     convergence: float = 1e-3
     max_threads: int = 1  # one scan is too small to gain from threads; leave cores to the solver
     min_points: int = 30  # fewer returns than this cannot constrain 3 DoF reliably
