@@ -56,7 +56,7 @@ class FloorNoise(ModelEffect):
     # For the BIC: the region's factor and its place, the search over places counted as
     # one parameter. On 30 simulated runs without a floor effect (the benchmark's clean
     # scenario, seeds 1-30, 180 s, 600 edges: 2·ln(edges) = 12.8) the best (noisier)
-    # rectangle's likelihood ratio stayed below it on all 30 (at most 10.4); one room's
+    # rectangle's likelihood ratio stayed below it on all 30 (at most 11.7); one room's
     # carpet reached 14.8-38.8 on the 9 of seeds 1-10 that enter the room. Because the
     # place is searched, its held-out likelihood ratio must clear a penalty too
     # (searched = True).
