@@ -105,9 +105,9 @@ class NoiseModel:
     (KISS-ICP, then the point-to-line refinement), error e = z ⊖ z_true:
 
       - bias (mean e): −0.02 / −0.01 mm, 0.00 mrad — none measurable;
-      - σ (robust, 1.4826·MAD) 1.17 / 1.10 mm, 0.25 mrad; plain σ 1.21 / 1.16 mm,
-        0.26 mrad (99th pct of |e| 3.5 / 3.4 mm, 0.7 mrad);
-      - it hardly grows with the motion: translation 0.9–1.5 mm and rotation 0.15–0.37 mrad
+      - σ (robust, 1.4826·MAD) 1.16 / 1.09 mm, 0.24 mrad; plain σ 1.20 / 1.16 mm,
+        0.26 mrad (99th pct of |e| 3.4 / 3.4 mm, 0.7 mrad);
+      - it hardly grows with the motion: translation 0.9–1.5 mm and rotation 0.12–0.37 mrad
         in every bin from standing still to 8 cm and 0.1 rad per scan (the bench's binned
         table). The refinement measures each scan against the previous one's wall lines,
         whose noise does not depend on how far the laser moved between them. A model
@@ -122,8 +122,8 @@ class NoiseModel:
         (for pure per-pose errors it would be −0.5). solver.chain_correlated_covariance
         accounts for it in the reported σ.
 
-    The least-squares fit of |e| gives (1.12 mm, 0.36 mm/m, 1.25 mm/rad; 0.24 mrad,
-    0.36 mrad/m, 0.41 mrad/rad) with χ²/DoF 1.09 / 1.01 / 1.06; under the defaults below
+    The least-squares fit of |e| gives (1.12 mm, 0.23 mm/m, 1.24 mm/rad; 0.23 mrad,
+    0.34 mrad/m, 0.38 mrad/rad) with χ²/DoF 1.09 / 1.01 / 1.07; under the defaults below
     χ²/DoF is 1.08 / 1.00 / 1.02. Where a pair of scans fixes the motion less well
     (noisier lasers, fewer walls) the refinement's own covariance is added to this model
     (point_to_line.RefinedScanMatcher), and the calibration rescales the laser edges'
