@@ -24,7 +24,7 @@ as well as a simpler one it selected (the one-standard-error rule's alternatives
 most frequent first entry of `unexplained_cause` over the seeds (with how many seeds).
 
 Run: .venv/bin/python bench/diagnose_effects.py [--seeds 5] [--duration 180]
-     [--scenarios carpet,speed_radius,clean,...] [--jobs 1]
+     [--scenarios carpet,speed_radius,clean,...] [--jobs 1] [--without-walls]
 """
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ def _in_region(xy, region):
             & (v >= region["across"][0]) & (v <= region["across"][1]))
 
 
-def run_case(scenario, seed, duration, workdir):
+def run_case(scenario, seed, duration, workdir, walls=True):
     from sclam_ros.core.params import SclamParams
     from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.io.recording import read_recording
@@ -88,7 +88,7 @@ def run_case(scenario, seed, duration, workdir):
     truth = simulate(bag, duration=duration, seed=seed, effects=effects, overwrite=True)
     params = SclamParams.from_yaml(bag / "params.yaml")
     start = time.perf_counter()
-    keyframes = read_recording(bag, params).keyframes
+    keyframes = read_recording(bag, params, keep_scan_points=walls).keyframes
     read_s = time.perf_counter() - start
     report = diagnose_keyframes(keyframes, params).report
     out = {"scenario": scenario, "seed": seed, "duration": duration,
@@ -125,6 +125,7 @@ def run_case(scenario, seed, duration, workdir):
         if floor["sigma"]:
             out["size_z"] = float((floor["value"] - ratio) / floor["sigma"])
         out["floor_selected"] = floor["selected"]
+        out["wall_support"] = floor["region"].get("wall_support")
     return out
 
 
@@ -154,17 +155,22 @@ def main():
     ap.add_argument("--duration", type=float, default=180.0)
     ap.add_argument("--scenarios", default=",".join(SCENARIOS))
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--without-walls", action="store_true",
+                    help="read the recordings without their scans' points: no map of walls "
+                         "bounds the floor region (what the likelihood alone finds)")
     args = ap.parse_args()
     names = [n.strip() for n in args.scenarios.split(",")]
     work = scratch_dir("sclam_diagnose_bench_")
     cases = [(n, s) for n in names for s in range(args.first_seed, args.first_seed + args.seeds)]
     results = {n: [] for n in names}
     with ProcessPoolExecutor(args.jobs) as pool:
-        futures = [pool.submit(run_case, n, s, args.duration, work) for n, s in cases]
+        futures = [pool.submit(run_case, n, s, args.duration, work, not args.without_walls)
+                   for n, s in cases]
         for (n, s), f in zip(cases, futures):
             r = f.result()
             results[n].append(r)
-            extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error", "size_z") if k in r)
+            extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error", "size_z",
+                                                          "wall_support") if r.get(k) is not None)
             extra += "" if r.get("room_visited", True) else " (the route never enters the room)"
             extra += f", named as fitting as well: {r['alternatives']}" if r["alternatives"] else ""
             if r.get("floor_evidence") and n in ("carpet", "clean"):
@@ -176,7 +182,8 @@ def main():
                   f"({r['cause_fraction'] or 0:.2f}){extra}, not separable "
                   f"{[p['effects'] for p in r['not_separable']]}, {r['seconds']:.0f} s", flush=True)
     print(f"\n{args.seeds} seeds from {args.first_seed}, {args.duration:.0f} s "
-          "(90 s for the library's mean effects)")
+          "(90 s for the library's mean effects)"
+          + (", without the map of walls" if args.without_walls else ""))
     print(table([_row(n, results[n]) for n in names],
                 ["scenario", "seeds", "selected correctly", "else named as fitting as well",
                  "region overlap", "size error", "size error / σ",

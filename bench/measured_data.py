@@ -86,7 +86,7 @@ def _mines_variant(src: Path, delay: float, work: Path) -> dict:
     out = work / f"{src.stem}_{delay * 1e3:.0f}ms"
     convert_breezyslam(src, out, scan_delay=delay)
     params = SclamParams.from_yaml(out / "params.yaml")
-    keyframes = read_recording(out / "bag", params).keyframes
+    keyframes = read_recording(out / "bag", params, keep_scan_points=True).keyframes
     calibration = calibrate_keyframes(keyframes, params)
     diagnosis = diagnose_keyframes(keyframes, params)  # the library's default candidates
     # The clock offset alone, for the trace: among the defaults scan_distortion's sweep

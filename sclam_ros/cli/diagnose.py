@@ -50,6 +50,15 @@ def _likelihood_ratio(evidence) -> str:
     return text
 
 
+def _region_text(region) -> str:
+    """Where a noise region lies (odometry frame), and how well walls bound it."""
+    corners = ", ".join(f"({x:.1f}, {y:.1f})" for x, y in region["corners"])
+    support = region.get("wall_support")
+    walls = ("no scans kept for a map of walls" if support is None else
+             f"walls bound it {support:.0%} (left through doors, no wall through it)")
+    return f"region: corners {corners} m in the odometry frame; {walls}"
+
+
 def format_summary(report) -> str:
     from sclam_ros.diagnosis.identifiability import SIGMA_RATIO
 
@@ -68,6 +77,8 @@ def format_summary(report) -> str:
                      f"{e['value']:.4g}{sigma} {e['evidence']['units']}  "
                      f"(held-out gain {e['evidence']['heldout_gain_per_edge']:+.4f}/edge, "
                      f"{_likelihood_ratio(e['evidence'])})")
+        if e["selected"] and e.get("region"):
+            lines.append("    " + _region_text(e["region"]))
         alternatives = e["evidence"].get("alternatives")
         if alternatives and e["selected"]:
             lines.append(f"    {', '.join(alternatives)} fit the data about as well (within one "
@@ -116,7 +127,8 @@ def run(args) -> int:
         raise CommandError(f"unknown effect(s) {unknown}; known: {', '.join(LIBRARY)}")
     params = SclamParams.from_yaml(args.params)
     recording = read_recording(args.bag, params,
-                               progress=ProgressBar("reading + scan matching", not args.quiet))
+                               progress=ProgressBar("reading + scan matching", not args.quiet),
+                               keep_scan_points=True)
     diagnosis = diagnose_keyframes(recording.keyframes, params, names, folds=args.folds,
                                    noise_folds=args.noise_folds, progress=None if args.quiet else log.info)
     if args.predict:

@@ -32,3 +32,6 @@ class Keyframe:
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to
     laser_motion: Optional[np.ndarray] = None  # z: laser_j ⊖ laser_from, in that frame
     laser_information: Optional[np.ndarray] = None  # (3, 3)
+    # (n, 2) m, the scan's points in the laser frame, float32: kept only on request
+    # (Frontend keep_scan_points), for the diagnosis's map of walls
+    scan_points: Optional[np.ndarray] = None

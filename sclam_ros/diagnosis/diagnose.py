@@ -32,6 +32,7 @@ from sclam_ros.core.solver import levenberg_marquardt, marginal_covariance, solv
 from sclam_ros.diagnosis import identifiability
 from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise
 from sclam_ros.diagnosis.regressors import regressors
+from sclam_ros.diagnosis.wall_map import WallMap
 from sclam_ros.diagnosis.structure import (fitted_values, name_structure, regressor_shares,
                                            residual_tests, significant)
 
@@ -617,6 +618,8 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
     base = Fit(problem, problem.values, dict(problem.scales), problem.cost(problem.values))
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     data = EffectData.from_keyframes(keyframes, inputs.stamps, positions=base.values["poses"][:, :2])
+    data.walls = WallMap.from_keyframes(keyframes, inputs.stamps, base.values["poses"],
+                                        base.values["laser"][0])
     wheel_angles = np.array([kf.wheel_angles for kf in merged], float).reshape(-1, 2)
     edges = paired_edges(inputs)
     odo_cov = OdometryCovariance.of(inputs, params, nominal[:3])

@@ -49,6 +49,7 @@ class _Registration:
     match_from: Optional[int] = None  # number of the scan the motion is relative to
     laser_motion: Optional[np.ndarray] = None
     laser_information: Optional[np.ndarray] = None
+    points: Optional[np.ndarray] = None  # (n, 2) laser frame, if the front end keeps them
 
 
 # Registrations remembered to resolve a match's reference scan to its keyframe; a match
@@ -60,8 +61,12 @@ class Frontend:
     """Feeds encoder samples and scans (in arrival order); returns finished keyframes."""
 
     def __init__(self, params, rejections: Optional[Rejections] = None, matcher=None,
-                 match_period: float = MATCH_PERIOD):
+                 match_period: float = MATCH_PERIOD, keep_scan_points: bool = False):
         self.params = params
+        # Keyframes carry their scan's points (Keyframe.scan_points): for the diagnosis's
+        # map of walls, not for the calibration (an hour of 360-beam scans matched every
+        # 0.3 s is ~35 MB of them).
+        self.keep_scan_points = keep_scan_points
         self.rejections = rejections if rejections is not None else Rejections()
         self.stream = EncoderStream.from_params(params, rejections=self.rejections)
         self.sync = ScanSynchronizer(self.stream, self.rejections)
@@ -124,6 +129,8 @@ class Frontend:
         config = self.matcher.config
         points = scan_to_points(scan, config.min_range, config.max_range)
         match, z, information = self.refined_matcher.add_scan(scan, guess, points)
+        if self.keep_scan_points:
+            registration.points = np.asarray(points[:, :2], np.float32)
         if z is not None:
             registration.match_from = int(match.index_from)
             registration.laser_motion = z
@@ -152,6 +159,7 @@ class Frontend:
             registration = early
         else:
             registration = self._register(synced.scan, synced.wheels)
+        kf.scan_points = registration.points
         self._keyframe_of[registration.number] = index
         if len(self._keyframe_of) > REMEMBERED_REGISTRATIONS:
             del self._keyframe_of[next(iter(self._keyframe_of))]

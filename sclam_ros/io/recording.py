@@ -165,8 +165,11 @@ def iter_keyframes(path, params, frontend=None, progress=None, start=None, stop=
     yield from frontend.flush()
 
 
-def read_recording(path, params, progress=None, start=None, stop=None) -> Recording:
-    frontend = Frontend(params)
+def read_recording(path, params, progress=None, start=None, stop=None,
+                   keep_scan_points=False) -> Recording:
+    """keep_scan_points: the keyframes carry their scans' points (for `sclam diagnose`'s
+    map of walls)."""
+    frontend = Frontend(params, keep_scan_points=keep_scan_points)
     counts = bag.ReadCounts()
     keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop, counts))
     return Recording(keyframes, frontend.rejections, counts.as_dict(), frontend)

@@ -33,7 +33,9 @@ class EffectData:
     # (n,) rad/s, the turn rate from the scan matches alone (the laser turns with the
     # body), so effects on the laser side do not depend on the wheel calibration.
     turn_rates: np.ndarray = None
-
+    # The walls the laser saw on the fitted map (diagnosis/wall_map.WallMap; None: no
+    # scans kept): where a noise region's boundary may lie.
+    walls: object = None
 
     @property
     def reference_time(self) -> float:

@@ -9,9 +9,12 @@ searched over a 0.5 m grid laid along the map's own axes (the headings of straig
 driving, modulo 90°: walls, and so rooms and their floors, run along them; the odometry
 frame starts at an arbitrary heading). For every rectangle holding at least MIN_EDGES
 edges, and leaving as many outside, the maximum-likelihood factor on the odometry
-covariance is taken inside and outside; the rectangle with the largest likelihood gain
-whose inside factor is the larger wins. Its sides are then placed halfway between its
-outermost edges and the nearest edges left out, so a held-out pass through
+covariance is taken inside and outside; of the rectangles whose inside factor is the
+larger, the one with the largest likelihood gain wins, unless the recording's scans
+give a map of walls (EffectData.walls): then, of the rectangles within WITHIN of the
+largest gain, the one whose boundary the walls support best (diagnosis/wall_map.py: it
+is left through doors, and no wall runs through it). Its sides are then placed halfway
+between its outermost edges and the nearest edges left out, so a held-out pass through
 the same room falls inside.
 
 The factors are relative to the one factor of all edges together, so the effect models
@@ -57,7 +60,7 @@ class FloorNoise(ModelEffect):
     # one parameter. On 30 simulated runs without a floor effect (the benchmark's clean
     # scenario, seeds 1-30, 180 s, 600 edges: 2·ln(edges) = 12.8) the best (noisier)
     # rectangle's likelihood ratio stayed below it on all 30 (at most 11.7); one room's
-    # carpet reached 14.8-38.8 on the 9 of seeds 1-10 that enter the room. Because the
+    # carpet reached 14.2-36.6 on the 9 of seeds 1-10 that enter the room. Because the
     # place is searched, its held-out likelihood ratio must clear a penalty too
     # (searched = True).
     dim = 2
@@ -73,6 +76,15 @@ class FloorNoise(ModelEffect):
     # the noisy floor, held-out gain −0.047 nats/edge at a likelihood ratio of 40.)
     COVERAGE = 1.0  # m
     LEVELS = np.linspace(np.log(1 / 8), np.log(8), 31)  # factors scanned (then refined)
+    # Rectangles whose likelihood gain is within WITHIN of the best are not told apart by
+    # the data: about one parameter's BIC penalty (ln(600 edges) / 2 = 3.2 nats on a
+    # 180 s run). Where the laser saw walls (EffectData.walls), of those the one whose
+    # boundary the walls support best is taken (diagnosis/wall_map.py). On one room's
+    # carpet, seeds 1-10, the likelihood's best rectangle and the room overlap by
+    # 0.75-0.94, the rectangle the walls bound by 0.84-0.99 (`bench/diagnose_effects.py
+    # --scenarios carpet --seeds 10 [--without-walls]`).
+    WITHIN = 3.0  # nats
+    MAX_CANDIDATES = 2000  # of the best gains; routes without a noisier floor have many
 
     def __init__(self, data):
         super().__init__(data)
@@ -83,6 +95,7 @@ class FloorNoise(ModelEffect):
         self.log_ratio_sigma = None  # 1σ of ln(inside / outside), given the region
         self.edges_inside = 0
         self.seen = None  # KD-tree of the fitted edges' mid-points (map axes)
+        self.wall_support = None  # wall_map score of the region (None: no walls)
 
     def _aligned(self, pose_i, pose_j):
         """Edge mid-points in the map's axes."""
@@ -99,10 +112,20 @@ class FloorNoise(ModelEffect):
         (per-edge factors (m,) → per-edge NLL (m,))."""
         self.angle = principal_angle(self.data.positions)
         u = self._aligned(pose_i, pose_j)
-        best = _best_rectangle(u, nll_profile(nll, len(u), self.LEVELS), self.CELL,
-                               self.MIN_EDGES)
-        if best is None:
+        walls = self.data.walls
+        candidates = _near_best_rectangles(u, nll_profile(nll, len(u), self.LEVELS), self.CELL,
+                                           self.MIN_EDGES, 0.0 if walls is None else self.WITHIN)
+        if not candidates:
             return
+        best = candidates[0][1]
+        if walls is not None:
+            # Time order, so that consecutive edges are the route's steps.
+            order = np.argsort(pose_i, kind="stable")
+            axis_walls = walls.in_axes(self.angle)
+            scores = [round(axis_walls.score(u[order], inside[order]), 3)
+                      for _, inside in candidates]
+            chosen = int(np.argmax(scores))  # the first (best gain) of ties
+            best, self.wall_support = candidates[chosen][1], scores[chosen]
         self.lo, self.hi = _with_margins(u, best)
         self.seen = cKDTree(u)
         inside = self.inside(pose_i, pose_j)
@@ -145,12 +168,16 @@ class FloorNoise(ModelEffect):
             "across": [float(self.lo[1]), float(self.hi[1])],
             "corners": [[float(c * a - s * b), float(s * a + c * b)] for a, b in corners],
             "edges_inside": self.edges_inside,
+            # How well walls bound it (diagnosis/wall_map.py: 1 = left only through
+            # doors, no wall through it; null: the scans were not kept)
+            "wall_support": self.wall_support,
         }}
 
 
-def _best_rectangle(u, profile, cell, min_edges):
-    """(edges inside (m,) bool) of the grid rectangle, noisier inside than outside, with
-    the largest likelihood gain.
+def _near_best_rectangles(u, profile, cell, min_edges, within):
+    """[(gain, edges inside (m,) bool)] of the grid rectangles, noisier inside than
+    outside, whose likelihood gain is within `within` of the largest: best first,
+    distinct edge sets, at most MAX_CANDIDATES ([] if there is none).
 
     profile (m, G): each edge's NLL at G common factors. With prefix sums over the grid
     cells, a rectangle's NLL at every factor is four look-ups, so all rectangles of the
@@ -168,7 +195,7 @@ def _best_rectangle(u, profile, cell, min_edges):
     total = sums[-1, -1]
     m = len(u)
     y_lo, y_hi = np.triu_indices(ny + 1, 1)
-    best_gain, best = 0.0, None
+    gains, sides = [], []
     for a in range(nx):
         strip = sums[a + 1:] - sums[a]  # (nx − a, ny + 1, G): columns a..b, rows 0..y
         strip_n = counts[a + 1:] - counts[a]
@@ -179,15 +206,29 @@ def _best_rectangle(u, profile, cell, min_edges):
             continue
         outside = total - inside
         gain = total.min() - inside.min(axis=2) - outside.min(axis=2)
-        ok &= inside.argmin(axis=2) > outside.argmin(axis=2)
-        gain[~ok] = -np.inf
-        k = np.unravel_index(np.argmax(gain), gain.shape)
-        if gain[k] > best_gain:
-            best_gain, best = gain[k], (a, a + 1 + k[0], y_lo[k[1]], y_hi[k[1]])
-    if best is None:
-        return None
-    a, b, c, d = best
-    return ((cells[:, 0] >= a) & (cells[:, 0] < b) & (cells[:, 1] >= c) & (cells[:, 1] < d))
+        ok &= (inside.argmin(axis=2) > outside.argmin(axis=2)) & (gain > 0)
+        b, k = np.nonzero(ok)
+        gains.append(gain[b, k])
+        sides.append(np.column_stack([np.full(len(b), a), a + 1 + b, y_lo[k], y_hi[k]]))
+    gains, sides = np.concatenate(gains or [[]]), np.concatenate(sides or [np.zeros((0, 4), int)])
+    if not len(gains):
+        return []
+    near = np.nonzero(gains >= gains.max() - within)[0]
+    order = near[np.argsort(-gains[near], kind="stable")]  # ties: the first in scan order
+    found, seen = [], set()
+    for start in range(0, len(order), 4096):  # many rectangles hold the same edges
+        chunk = order[start:start + 4096]
+        a, b, c, d = (sides[chunk, i, None] for i in range(4))
+        inside = ((cells[:, 0] >= a) & (cells[:, 0] < b) & (cells[:, 1] >= c)
+                  & (cells[:, 1] < d))
+        for n, row, key in zip(chunk, inside, np.packbits(inside, axis=1)):
+            key = key.tobytes()
+            if key not in seen:
+                seen.add(key)
+                found.append((float(gains[n]), row))
+                if len(found) == FloorNoise.MAX_CANDIDATES:
+                    return found
+    return found
 
 
 def _with_margins(u, inside):
