@@ -88,11 +88,20 @@ def test_the_walls_take_the_room_of_rectangles_the_likelihood_cannot_tell_apart(
     wrong = {None: 0, "walls": 0}
     for seed in range(30):
         nll = _disagreements(np.random.default_rng(seed), np.where(room_a, 3.0, 1.0)).nll
+        found = {}
         for key, walls in ((None, None), ("walls", _wall_map())):
             effect = LIBRARY["floor_noise"](EffectData(np.arange(m + 1.0), np.zeros((m + 1, 2)),
                                                        positions, walls=walls))
             effect.fit(pose, pose, nll)
-            wrong[key] += not np.array_equal(effect.inside(pose, pose), room_a)
+            found[key] = effect.inside(pose, pose)
+            wrong[key] += not np.array_equal(found[key], room_a)
+        # The walls' choice fits worse than the likelihood's best by less than WITHIN
+        # (plus what refining the factors off the search's grid of levels moves), and
+        # the selection is told by how much.
+        if np.array_equal(found[None], found["walls"]):
+            assert effect.search_deficit == 0.0
+        else:
+            assert 0.0 < effect.search_deficit <= effect.WITHIN + 0.5
     assert wrong["walls"] == 0, wrong
     assert wrong[None] >= 3, wrong  # without the walls: 5 of these 30 draws
 

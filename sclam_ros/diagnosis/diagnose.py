@@ -373,7 +373,9 @@ def _evaluate(models: _Models, selected, name, n_edges) -> dict:
     candidate = next((e for e in noise if e.name == name), None) or models.effects([name])[0]
     spread = candidate.kind == "noise"
     gain = models.heldout_nll(selected, spread) - models.heldout_nll(selected + [name], spread)
-    lr = float(cost_before - cost)
+    # A region placed by the walls is tested by its search's best rectangle
+    # (FloorNoise.search_deficit): the statistic the penalty was set on.
+    lr = float(cost_before - cost) + 2.0 * getattr(candidate, "search_deficit", 0.0)
     bic = candidate.dim * np.log(n_edges)
     # An effect found by a search (a region's place) overfits its in-sample likelihood
     # ratio by more than a count of parameters can say for every run; its place is
