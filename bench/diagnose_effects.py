@@ -9,7 +9,7 @@ Scenarios (PowerBot, office world, --duration s unless said):
                 where the route never enters the room, nothing selected (it is clean).
                 Region overlap: time inside the found rectangle ∩ inside the room over
                 their union, on the true trajectory; size error: variance ratio vs 2.44,
-                also in units of the reported σ of the ratio.
+                also in units of the reported σ of the ratio; time in the room per seed.
   speed_radius  each wheel's radius grows with its own speed, r·(1 + 0.1·u²) (not in
                 the library). Correct: no library effect selected, and the regressor
                 named first for what is unexplained is the speed (v, |v| or v·|v|).
@@ -101,10 +101,11 @@ def run_case(scenario, seed, duration, workdir, walls=True):
            "alternatives": sorted({a for e in report["effects"] if e["selected"]
                                    for a in e["evidence"].get("alternatives", [])})}
     if scenario == "carpet":
-        _, odom_xy, world_xy = _world_positions(bag, truth)
+        stamps, odom_xy, world_xy = _world_positions(bag, truth)
         true_in = ((world_xy[:, 0] >= ROOM["x_min"]) & (world_xy[:, 0] <= ROOM["x_max"])
                    & (world_xy[:, 1] >= ROOM["y_min"]) & (world_xy[:, 1] <= ROOM["y_max"]))
         out["room_visited"] = bool(true_in.any())
+        out["room_seconds"] = float(np.sum(np.diff(stamps)[true_in[:-1]]))
         if not out["room_visited"]:  # the route never reaches the carpet: a clean recording
             expected = None
     out["correct"] = out["selected"] == ([expected] if expected else [])
@@ -171,6 +172,7 @@ def main():
             results[n].append(r)
             extra = "".join(f" {k} {r[k]:.2f}" for k in ("overlap", "size_error", "size_z",
                                                           "wall_support") if r.get(k) is not None)
+            extra += f", {r['room_seconds']:.0f} s in the room" if r.get("room_seconds") else ""
             extra += "" if r.get("room_visited", True) else " (the route never enters the room)"
             extra += f", named as fitting as well: {r['alternatives']}" if r["alternatives"] else ""
             if r.get("floor_evidence") and n in ("carpet", "clean"):
