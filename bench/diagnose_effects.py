@@ -94,6 +94,9 @@ def run_case(scenario, seed, duration, workdir, walls=True):
     out = {"scenario": scenario, "seed": seed, "duration": duration,
            "seconds": time.perf_counter() - start, "read_seconds": read_s,
            "selected": [e["name"] for e in report["effects"] if e["selected"]],
+           # value ± σ of each selected effect, in its units
+           "values": {e["name"]: (e["value"], e["sigma"]) for e in report["effects"]
+                      if e["selected"]},
            "cause": (report["unexplained_cause"] or [{}])[0].get("regressor"),
            "cause_fraction": (report["unexplained_cause"] or [{}])[0].get("fraction_explained"),
            "not_separable": report["not_separable"], "warnings": report["warnings"],
@@ -180,7 +183,10 @@ def main():
                 extra += (f", floor_noise likelihood ratio {lr:.1f} (penalty {bic:.1f}), held out "
                           f"{held if held is None else round(held, 1)} (penalty "
                           f"{held_penalty if held_penalty is None else round(held_penalty, 1)})")
-            print(f"{n} seed {s}: selected {r['selected'] or 'none'}, cause {r['cause']} "
+            values = ", ".join(f"{name} {v:.4g}" + (f" ± {sd:.2g}" if sd else "")
+                               for name, (v, sd) in r["values"].items())
+            print(f"{n} seed {s}: selected {r['selected'] or 'none'}"
+                  f"{f' ({values})' if values else ''}, cause {r['cause']} "
                   f"({r['cause_fraction'] or 0:.2f}){extra}, not separable "
                   f"{[p['effects'] for p in r['not_separable']]}, {r['seconds']:.0f} s", flush=True)
     print(f"\n{args.seeds} seeds from {args.first_seed}, {args.duration:.0f} s "
