@@ -51,7 +51,8 @@ def run_case(job):
         options = {"effects": {"floor_noise_region": {"factor": 2.0, "x_min": x_min}}}
     simulate(bag, duration=duration, seed=1, overwrite=True, **options)
     params = SclamParams.from_yaml(bag / "params.yaml")
-    report = diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    report = diagnose_keyframes(keyframes, params).report
     selected = [e["name"] for e in report["effects"] if e["selected"]]
     estimate = "–"
     if name is not None:

@@ -50,7 +50,8 @@ def test_cli_selects_time_offset(tmp_path_factory, tmp_path):
 def test_selects_lateral_slip(tmp_path_factory):
     bag = _bag(tmp_path_factory, "slip", {"lateral_slip": 0.05})
     params = SclamParams.from_yaml(bag / "params.yaml")
-    report = diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    report = diagnose_keyframes(keyframes, params).report
     assert [e["name"] for e in report["effects"] if e["selected"]] == ["lateral_slip"]
     assert _effect(report, "lateral_slip")["value"] == pytest.approx(0.05, rel=0.2)
     assert report["extended"]["error"] < report["base"]["error"]
@@ -60,7 +61,8 @@ def test_selects_lateral_slip(tmp_path_factory):
 def test_selects_nothing_without_effect(tmp_path_factory):
     bag = _bag(tmp_path_factory, "plain", None)
     params = SclamParams.from_yaml(bag / "params.yaml")
-    report = diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    report = diagnose_keyframes(keyframes, params).report
     assert not [e["name"] for e in report["effects"] if e["selected"]]
     assert report["extended"]["error"] == report["base"]["error"]
     # Nothing depends on any regressor. The residuals' autocorrelation ("lag") may be

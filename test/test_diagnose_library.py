@@ -30,7 +30,8 @@ SEED = 1
 
 def _diagnose(bag):
     params = SclamParams.from_yaml(bag / "params.yaml")
-    return diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    return diagnose_keyframes(keyframes, params).report
 
 
 def _selected(report):

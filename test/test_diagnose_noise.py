@@ -121,7 +121,8 @@ ROOM = {"x_min": 0.0, "x_max": 11.0, "y_min": 9.0, "y_max": 16.0}  # room n1 of 
 
 def _diagnose(bag, names=None):
     params = SclamParams.from_yaml(bag / "params.yaml")
-    return diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params, names).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    return diagnose_keyframes(keyframes, params, names).report
 
 
 def _summary_line(text, start):
@@ -149,10 +150,10 @@ def test_carpet_in_one_room_is_found(tmp_path, seed, capsys):
                      "--json", str(tmp_path / "diagnosis.json"), "--quiet"]) == 0
     report = json.loads((tmp_path / "diagnosis.json").read_text())
     assert _selected(report) == ["floor_noise"]
+    floor = next(e for e in report["effects"] if e["name"] == "floor_noise")
     # The room is left through its doors only: the walls bound the region found.
     assert _summary_line(capsys.readouterr().out, "region: corners")
-    assert [e for e in report["effects"] if e["selected"]][0]["region"]["wall_support"] >= 0.5
-    floor = next(e for e in report["effects"] if e["name"] == "floor_noise")
+    assert floor["region"]["wall_support"] >= 0.5
     assert floor["value"] == pytest.approx(make_effect("floor_noise_area", spec).variance_ratio(),
                                            rel=0.3)
     _, poses = read_ground_truth(tmp_path / "carpet")

@@ -24,7 +24,8 @@ def _diagnose(tmp_path, name, value, duration):
     bag = tmp_path / name
     simulate(bag, duration=duration, seed=1, effects={name: value})
     params = SclamParams.from_yaml(bag / "params.yaml")
-    return diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params, folds=FOLDS).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    return diagnose_keyframes(keyframes, params, folds=FOLDS).report
 
 
 def _no_confident_wrong_attribution(report):
@@ -57,7 +58,8 @@ def test_a_radius_following_the_speed_is_not_taken_for_a_drift_in_time(tmp_path)
     bag = tmp_path / "speed_radius"
     simulate(bag, duration=180.0, seed=3, effects={"speed_dependent_radius": 0.1})
     params = SclamParams.from_yaml(bag / "params.yaml")
-    report = diagnose_keyframes(read_recording(bag, params, keep_scan_points=True).keyframes, params).report
+    keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
+    report = diagnose_keyframes(keyframes, params).report
     drift = next(e for e in report["effects"] if e["name"] == "radius_drift")
     assert not drift["selected"]
     speed = ("v", "abs_v", "v_squared")
