@@ -86,10 +86,11 @@ def test_the_walls_take_the_room_of_rectangles_the_likelihood_cannot_tell_apart(
     room_a = (u[:, 1] >= 0) & (u[:, 0] < 6)  # the edge in the corridor's doorway counted in
     pose = np.arange(m)
     wrong = {None: 0, "walls": 0}
+    wall_map = _wall_map()
     for seed in range(30):
         nll = _disagreements(np.random.default_rng(seed), np.where(room_a, 3.0, 1.0)).nll
         found = {}
-        for key, walls in ((None, None), ("walls", _wall_map())):
+        for key, walls in ((None, None), ("walls", wall_map)):
             effect = LIBRARY["floor_noise"](EffectData(np.arange(m + 1.0), np.zeros((m + 1, 2)),
                                                        positions, walls=walls))
             effect.fit(pose, pose, nll)

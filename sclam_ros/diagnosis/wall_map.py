@@ -77,9 +77,7 @@ class WallMap:
 
     def in_axes(self, angle: float) -> "AxisWalls":
         """The map in axes rotated by `angle` (rad) from the odometry frame's."""
-        c, s = np.cos(angle), np.sin(angle)
-        o = self.occupied
-        return AxisWalls(np.column_stack([c * o[:, 0] + s * o[:, 1], -s * o[:, 0] + c * o[:, 1]]))
+        return AxisWalls(se2.rotate_inverse(angle, self.occupied))
 
 
 class AxisWalls:

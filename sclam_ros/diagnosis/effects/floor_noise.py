@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sclam_ros.core import se2
 from sclam_ros.diagnosis.effects.base import ModelEffect
 from sclam_ros.diagnosis.effects.noise_fit import ml_factor, ml_factor_with_sigma, nll_profile
 
@@ -105,8 +106,7 @@ class FloorNoise(ModelEffect):
     def _aligned(self, pose_i, pose_j):
         """Edge mid-points in the map's axes."""
         mid = 0.5 * (self.data.positions[pose_i] + self.data.positions[pose_j])
-        c, s = np.cos(self.angle), np.sin(self.angle)
-        return np.column_stack([c * mid[:, 0] + s * mid[:, 1], -s * mid[:, 0] + c * mid[:, 1]])
+        return se2.rotate_inverse(self.angle, mid)
 
     def inside(self, pose_i, pose_j):
         u = self._aligned(pose_i, pose_j)
