@@ -375,7 +375,7 @@ def _evaluate(models: _Models, selected, name, n_edges) -> dict:
     gain = models.heldout_nll(selected, spread) - models.heldout_nll(selected + [name], spread)
     # A region placed by the walls is tested by its search's best rectangle
     # (FloorNoise.search_deficit): the statistic the penalty was set on.
-    lr = float(cost_before - cost) + 2.0 * getattr(candidate, "search_deficit", 0.0)
+    lr = float(cost_before - cost) + 2.0 * candidate.search_deficit
     bic = candidate.dim * np.log(n_edges)
     # An effect found by a search (a region's place) overfits its in-sample likelihood
     # ratio by more than a count of parameters can say for every run; its place is

@@ -97,6 +97,10 @@ class ModelEffect:
     # its held-out likelihood ratio must then clear a penalty too, not only its in-sample
     # one (which the search overfits).
     searched = False
+    # NLL (nats) by which the place a search chose fits worse than the search's best (a
+    # region moved by the walls: FloorNoise); _evaluate adds it back, so that the
+    # selection tests the statistic its penalty was set on. 0 for every other effect.
+    search_deficit = 0.0
     # The regressors (diagnosis/regressors.py) that describe this effect's footprint in the
     # odometry residuals. When another regressor explains more of the structure than these
     # do, the effect would only stand in for that cause and is not selected (_evaluate).
