@@ -1,13 +1,15 @@
-"""Where on a drive the scan matches come out long: their scale along the office corridor and elsewhere.
+"""Where on a drive the scan matches come out long: their scale along a corridor and elsewhere.
 
 A calibration's wheel radii follow the scale of the scan matches as the graph weighs them.
 Here the matches of simulated drives (a row of bench/sensor_matrix.py, default the low-cost
 laser; --seeds seeds, --duration s each, matched as `sclam calibrate` does) are split by
 where they were made:
 
-  - along the corridor: the laser inside the office corridor's band (world y 6.5-9 m,
-    x 0-22 m; sim/world.py) and moving within 20° of the corridor's direction;
-  - elsewhere: every other match.
+  - along a corridor: the laser inside a corridor's band (sim/world.py CORRIDORS: the
+    office's one corridor, world y 6.5-9 m and x 0-22 m, or the four of the corridors
+    scene) and moving within 20° of that corridor's direction;
+  - elsewhere: every other match (in the corridors scene: in its lobbies, and turning or
+    crossing inside its corridors).
 
 Per place: the number of matches, its share of the matches' weight (information along the
 motion), and the scale of the matched translations, weighted as the graph weighs them,
@@ -17,6 +19,8 @@ its standard error from resampling the seeds. Matches shorter than 2 cm are left
 direction is not defined).
 
 Run: .venv/bin/python bench/match_scale_by_place.py [--row 4] [--seeds 80] [--duration 120] [--jobs 2]
+     (--row: any row of bench/sensor_matrix.py whose scene has corridors: the office's or
+      the corridors scene's)
 """
 from __future__ import annotations
 
@@ -32,8 +36,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir, table  # noqa: E402
 from sensor_matrix import ROWS, matches_against_truth  # noqa: E402
 
-CORRIDOR = dict(x=(0.0, 22.0), y=(6.5, 9.0))  # the office corridor (sim/world.py)
-ALONG = np.radians(20.0)  # motion within this of the corridor's direction (world x)
+from sclam_ros.sim.world import CORRIDORS  # noqa: E402
+
+ALONG = np.radians(20.0)  # motion within this of the corridor's direction
 SHORTEST = 0.02  # m
 
 
@@ -57,14 +62,23 @@ def run_seed(job):
     error = ((z[keep, :2] - z_true[keep, :2]) * unit).sum(1)
     weight = np.einsum("mi,mij,mj->m", unit, information[keep, :2, :2], unit)
     heading = start[keep, 2] + np.arctan2(unit[:, 1], unit[:, 0])  # of the motion, world
-    x, y = start[keep, 0], start[keep, 1]
-    corridor = ((x > CORRIDOR["x"][0]) & (x < CORRIDOR["x"][1]) & (y > CORRIDOR["y"][0])
-                & (y < CORRIDOR["y"][1]) & (np.abs(np.sin(heading)) < np.sin(ALONG)))
+    corridor = along_a_corridor(CORRIDORS[row.get("scene", "office")], start[keep, :2], heading)
     length = length[keep]
     return {place: (np.sum(weight[k] * error[k] * length[k]), np.sum(weight[k] * length[k] ** 2),
                     np.sum(error[k] * length[k]), np.sum(length[k] ** 2), int(k.sum()))
-            for place, k in (("along the corridor", corridor), ("elsewhere", ~corridor),
+            for place, k in (("along a corridor", corridor), ("elsewhere", ~corridor),
                              ("all", np.ones_like(corridor)))}
+
+
+def along_a_corridor(bands, position, heading):
+    """(M,) bool: each match made inside one of the corridor `bands` (sim/world.py
+    CORRIDORS) and moving within ALONG of that corridor's direction (world `heading`)."""
+    x, y = position[:, 0], position[:, 1]
+    along = np.zeros(len(x), bool)
+    for (x0, x1), (y0, y1), axis in bands:
+        off_axis = np.abs(np.sin(heading) if axis == 0 else np.cos(heading))
+        along |= (x > x0) & (x < x1) & (y > y0) & (y < y1) & (off_axis < np.sin(ALONG))
+    return along
 
 
 def _ratio_with_error(numerator, denominator, rng):
@@ -82,6 +96,8 @@ def main():
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
     name, row = list(ROWS.items())[args.row]
+    if row.get("scene", "office") not in CORRIDORS:
+        ap.error(f"row {args.row} ({name}) is in a scene without corridors")
     workdir = scratch_dir("match_scale_by_place")
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_seed, [(row, seed, args.duration, workdir)
@@ -89,7 +105,7 @@ def main():
     rng = np.random.default_rng(0)
     total_weight = sum(r["all"][1] for r in results)
     cells = []
-    for place in ("along the corridor", "elsewhere", "all"):
+    for place in ("along a corridor", "elsewhere", "all"):
         sums = np.array([r[place] for r in results], float)  # (seeds, 5)
         weighted, weighted_error = _ratio_with_error(sums[:, 0], sums[:, 1], rng)
         plain, plain_error = _ratio_with_error(sums[:, 2], sums[:, 3], rng)

@@ -1,9 +1,9 @@
 """Calibration accuracy on the lasers people own, indoors and outdoors, against ground truth.
 
 Each row is a laser (rate, field of view, beams, range, noise, dropouts, mixed pixels), a
-scene (the office, or open ground with trees, poles and cars) and an odometry rate; each is
-simulated with --seeds seeds (PowerBot, --duration s, the default drive) and calibrated as
-`sclam calibrate` does. Per row:
+scene (the office, open ground with trees, poles and cars, or a ring of bare corridors) and
+an odometry rate; each is simulated with --seeds seeds (PowerBot, --duration s, the default
+drive) and calibrated as `sclam calibrate` does. Per row:
 
   - error per parameter: the mean over seeds (bias) and the RMS, in % of the true value for
     the radii and the base, mm and degrees for the laser; for the radii and the base also
@@ -71,6 +71,10 @@ ROWS = {
 URG = ROWS["10 Hz, 240°, 683 b, 5.6 m, 3 cm (URG-04LX)"]
 OUTDOOR = ROWS["outdoor, default laser"]
 LOW_COST = ROWS["5 Hz, 360°, 720 b, 12 m, 2 cm + 1 %, 10 % dropouts, mixed pixels (low-cost)"]
+# A ring of bare corridors between four lobbies (sim/world.py corridors_world): rows 9-11.
+ROWS["corridors, default laser"] = dict(scene="corridors")
+ROWS["corridors, URG-04LX-like"] = dict(URG, scene="corridors")
+ROWS["corridors, low-cost"] = dict(LOW_COST, scene="corridors")
 FACTOR_ROWS = {
     "urg": {
         "URG-04LX-like": URG,

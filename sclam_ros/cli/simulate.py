@@ -48,8 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="probability that a beam with a target returns nothing (default: %(default)s)")
     parser.add_argument("--mixed-pixels", type=float, default=0.0,
                         help="probability of a point between the surfaces at a depth edge (default: %(default)s)")
-    parser.add_argument("--scene", choices=("office", "outdoor"), default="office",
-                        help="office: walls and furniture; outdoor: trees, poles, parked cars (default: %(default)s)")
+    parser.add_argument("--scene", choices=("office", "outdoor", "corridors"), default="office",
+                        help="office: walls and furniture; outdoor: trees, poles, parked cars; "
+                             "corridors: a ring of bare corridors between four lobbies (default: %(default)s)")
     parser.add_argument("--motion", choices=MOTIONS, default="route",
                         help="route: a random drive that excites every parameter; straight, "
                              "straight_then_turns, spin, still: fixed patterns that leave some "

@@ -1,8 +1,10 @@
-"""The simulated indoor world: walls as line segments, ray casting, clearance.
+"""The simulated worlds: walls as line segments, ray casting, clearance.
 
-The floor plan is an office floor (30 m × 16 m): a corridor with five rooms on both
+The default floor plan is an office floor (30 m × 16 m): a corridor with five rooms on both
 sides, doors between them, an open hall with pillars, and furniture along the walls so
-that every scan has corners to match. Beside the walls it carries a roadmap (nodes in
+that every scan has corners to match. The other scenes (SCENES) are open ground with
+trees, poles and parked cars (outdoor_world) and a ring of bare corridors between four
+lobbies (corridors_world). Beside the walls each carries a roadmap (nodes in
 free space and straight, collision-free edges between them) that the trajectory
 generator walks; ``test_sim`` checks every edge against the walls.
 
@@ -250,7 +252,40 @@ def outdoor_world() -> World:
     return World(np.array(walls, float), nodes, edges, open_nodes, (0.0, 0.0, 50.0, 30.0))
 
 
-SCENES = {"office": office_world, "outdoor": outdoor_world}
+def corridors_world() -> World:
+    """A ring of plain corridors (28 m × 18 m): four corridors 2.4 m wide, two 18 m and two
+    8 m long, joining four 5 m × 5 m lobbies at the corners.
+
+    What a laser sees in a building of long bare corridors: two parallel walls without
+    doors or furniture, and the far end of a corridor only while it is in range, so a
+    match made along a corridor fixes the motion along it poorly; the lobbies' walls and
+    corners fix it. The roadmap runs along the corridors' centre lines through the
+    lobbies' centres, where loops and spins fit.
+    """
+    walls = []
+    # The outer boundary, then the inner block, each a closed polyline around the ring.
+    walls += _polyline((0, 0), (5, 0), (5, 1.3), (23, 1.3), (23, 0), (28, 0), (28, 5), (26.7, 5),
+                       (26.7, 13), (28, 13), (28, 18), (23, 18), (23, 16.7), (5, 16.7), (5, 18),
+                       (0, 18), (0, 13), (1.3, 13), (1.3, 5), (0, 5), (0, 0))
+    walls += _polyline((3.7, 5), (5, 5), (5, 3.7), (23, 3.7), (23, 5), (24.3, 5), (24.3, 13),
+                       (23, 13), (23, 14.3), (5, 14.3), (5, 13), (3.7, 13), (3.7, 5))
+    nodes = {"lobby_sw": (2.5, 2.5), "corridor_s": (14.0, 2.5), "lobby_se": (25.5, 2.5),
+             "corridor_e": (25.5, 9.0), "lobby_ne": (25.5, 15.5), "corridor_n": (14.0, 15.5),
+             "lobby_nw": (2.5, 15.5), "corridor_w": (2.5, 9.0)}
+    ring = list(nodes)
+    edges = [(ring[i], ring[(i + 1) % len(ring)]) for i in range(len(ring))]
+    open_nodes = ("lobby_sw", "lobby_se", "lobby_ne", "lobby_nw")
+    return World(np.array(walls, float), nodes, edges, open_nodes, (0.0, 0.0, 28.0, 18.0))
+
+
+# Corridor bands of the scenes that have them, (x range, y range, axis: 0 along world x,
+# 1 along y): where a match is "along a corridor" (bench/match_scale_by_place.py).
+CORRIDORS = {
+    "office": [((0.0, 22.0), (6.5, 9.0), 0)],
+    "corridors": [((5.0, 23.0), (1.3, 3.7), 0), ((5.0, 23.0), (14.3, 16.7), 0),
+                  ((1.3, 3.7), (5.0, 13.0), 1), ((24.3, 26.7), (5.0, 13.0), 1)],
+}
+SCENES = {"office": office_world, "outdoor": outdoor_world, "corridors": corridors_world}
 MIRRORED = "-mirrored"  # a scene's name with this suffix: that scene reflected (mirrored())
 
 
