@@ -181,8 +181,11 @@ def test_corridors_scene_is_bare_along_its_corridors():
         ranges = world.raycast(np.array(pose), angles, 5.6)
         hit = np.isfinite(ranges)
         assert 0.5 < hit.mean() < 0.95  # the ends of the corridor are out of range
-        points = pose[across] + ranges[hit] * np.sin(angles[hit] + pose[2] + (0.5 * np.pi if across == 0 else 0.0))
-        np.testing.assert_allclose(np.abs(points - pose[across]), 1.2, atol=1e-9)
+        bearing = angles[hit] + pose[2]
+        points = np.column_stack((pose[0] + ranges[hit] * np.cos(bearing),
+                                  pose[1] + ranges[hit] * np.sin(bearing)))
+        # every return on a side wall: 1.2 m across the corridor from its centre line
+        np.testing.assert_allclose(np.abs(points[:, across] - pose[across]), 1.2, atol=1e-9)
     for (x0, x1), (y0, y1), axis in CORRIDORS["corridors"]:
         along = np.linspace(x0, x1, 20) if axis == 0 else np.linspace(y0, y1, 20)
         middle = np.full(20, 0.5 * (y0 + y1) if axis == 0 else 0.5 * (x0 + x1))

@@ -55,7 +55,8 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
     ``effects``: dict name -> value (see ``sclam_ros.sim.effects.EFFECTS``).
     ``scene``: "office" (walls, rooms, furniture), "outdoor" (trees, poles, parked cars) or
-    "corridors" (a ring of bare corridors between four lobbies), each with the suffix "-mirrored" reflected left for right (world.mirrored).
+    "corridors" (a ring of bare corridors between four lobbies), each with the suffix
+    "-mirrored" reflected left for right (world.mirrored).
     ``motion``: "route" (random, excites every parameter) or a fixed pattern that does not
     ("straight", "straight_then_turns", "spin", "still": sim.trajectory.MOTIONS).
     ``laser``: further LaserModel fields (fov in rad, range_max, range_noise_per_m,

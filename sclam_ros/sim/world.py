@@ -253,7 +253,7 @@ def outdoor_world() -> World:
 
 
 def corridors_world() -> World:
-    """A ring of plain corridors (28 m × 18 m): four corridors 2.4 m wide, two 18 m and two
+    """A ring of bare corridors (28 m × 18 m): four corridors 2.4 m wide, two 18 m and two
     8 m long, joining four 5 m × 5 m lobbies at the corners.
 
     What a laser sees in a building of long bare corridors: two parallel walls without
