@@ -18,6 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from sclam_ros.sim.effects import EFFECTS
     from sclam_ros.sim.robots import PRESETS
     from sclam_ros.sim.trajectory import MOTIONS
+    from sclam_ros.sim.world import SCENES
 
     parser.add_argument("out", help="output folder (becomes the rosbag2; must not exist)")
     parser.add_argument("--robot", choices=sorted(PRESETS), default="powerbot",
@@ -48,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="probability that a beam with a target returns nothing (default: %(default)s)")
     parser.add_argument("--mixed-pixels", type=float, default=0.0,
                         help="probability of a point between the surfaces at a depth edge (default: %(default)s)")
-    parser.add_argument("--scene", choices=("office", "outdoor", "corridors"), default="office",
+    parser.add_argument("--scene", choices=tuple(SCENES), default="office",
                         help="office: walls and furniture; outdoor: trees, poles, parked cars; "
                              "corridors: a ring of bare corridors between four lobbies (default: %(default)s)")
     parser.add_argument("--motion", choices=MOTIONS, default="route",
