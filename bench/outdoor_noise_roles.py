@@ -70,8 +70,8 @@ before the calibration); the product code is not changed.
 without range noise: neither the constant part nor the part proportional to the range).
 Variants 3, 9-12, 16 and 17 take the reference's returns as its anchors or fit its lines
 over 6 beams, as the product does on a low-noise laser, and variant 7 applies only there:
-on a laser judged noisy (the wide fit, anchors on fitted lines) they change more than they
-say, or nothing. Variants 0-2, 4-6, 8, 13-15 and 18 apply to any row.
+on a laser judged noisy (wall-segment lines, anchors where the beams meet them) they
+change more than they say, or nothing. Variants 0-2, 4-6, 8, 13-15 and 18 apply to any row.
 
 Run: .venv/bin/python bench/outdoor_noise_roles.py [--seeds 20] [--duration 120] [--jobs 2]
      [--variants N ...]   (their numbers in the list above, from 0; default all)

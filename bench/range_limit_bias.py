@@ -22,10 +22,9 @@ Variants:
   - the cut in the later scan of the pair only (the earlier one keeps its readings);
   - the earlier scan's returns whose *true* range is within 4σ of the limit left out (only a
     simulator knows the true range);
-  - noise-free scans with the 0.25 m wall fit of noisy lasers, and with the 6-beam fit;
+  - noise-free scans with the wall-segment lines of noisy lasers, and with the 6-beam fit;
   - the earlier scan's returns whose true point lies within 0.3 m of a wall segment's end
-    (corners, door frames, furniture edges: where the 0.25 m fit's neighbourhood holds
-    more than one straight wall) left out, with noise and noise-free;
+    (corners, door frames, furniture edges) left out, with noise and noise-free;
   - without the laser's mixed pixels, without its dropouts (the URG-like laser has
     neither: its rows repeat the pipeline's).
 
@@ -53,10 +52,10 @@ VARIANTS = {
     "readings past range_max kept": {"cut": ()},
     "cut in the later scan only": {"cut": (1,)},
     "earlier scan: true range within 4σ of the limit left out": {"oracle": 4.0},
-    "noise-free, 0.25 m wall fit": {"noise_free": True},
+    "noise-free, wall-segment lines": {"noise_free": True},
     "noise-free, 6-beam wall fit": {"noise_free": True, "narrow": True},
     "earlier scan: returns within 0.3 m of a wall's end left out": {"ends": 0.3},
-    "noise-free, 0.25 m fit, the same left out": {"noise_free": True, "ends": 0.3},
+    "noise-free, wall-segment lines, the same left out": {"noise_free": True, "ends": 0.3},
     "without mixed pixels": {"mixed_pixels": False},
     "without dropouts": {"dropouts": False},
 }

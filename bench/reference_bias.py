@@ -2,8 +2,8 @@
 
 A scan match is refined by measuring each new return's distance to the previous scan's
 wall lines (frontend/point_to_line.py). Each line passes through a residual origin: on a
-noisy laser, the centroid of the wall around the reference return where the wall is
-densely sampled (an "anchor"), else the return itself. If those origins sit beyond or in
+noisy laser, where the reference return's beam meets the line fitted to its straight
+segment (an "anchor", frontend/wall_segments.py), else the return itself. If those origins sit beyond or in
 front of the true walls, the matches come out long or short. Here the reference scans of
 the default drive (PowerBot, office, `--seeds` routes of `--duration` s, one scan every
 0.3 s, turns included) are ray cast with each laser's noise model, turned into reference
@@ -71,14 +71,12 @@ def _offsets(job):
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
     usable = model.range_max - (point_to_line.CLEAR_OF_LIMIT * noise if noise <= point_to_line.NOT_A_NOISE else 0.0)
     kinds, ranges, offsets = [], [], []
-    for pose, scan, r_true in zip(poses, scans, true):
+    for pose, scan in zip(poses, scans):
         points = scan_to_points(scan)[:, :2]
         reference = point_to_line.ReferenceScan.from_points(points, fit_noise, usable)
         if reference is None:
             continue
-        beam_of = {tuple(p): i for i, p in zip(np.flatnonzero(np.isfinite(scan.ranges)), points)}
-        beams = np.array([beam_of[tuple(p)] for p in reference.points])
-        anchored = np.any(reference.anchors != reference.points, axis=1)
+        anchored = np.full(len(reference.anchors), fit_noise is not None)
         origin = reference.anchors
         bearing = np.arctan2(origin[:, 1], origin[:, 0])
         wall = world.raycast(pose, bearing, 2.0 * model.range_max)  # true wall on the origin's bearing
@@ -87,7 +85,7 @@ def _offsets(job):
         away = np.sign(np.sum(reference.normals * origin, axis=1))  # normal oriented away from the laser
         offset = np.sum((origin - wall_point) * reference.normals, axis=1) * away
         kinds.append(anchored[ok])
-        ranges.append(r_true[beams][ok])
+        ranges.append(wall[ok])  # the true range on the origin's beam
         offsets.append(offset[ok])
     return np.concatenate(kinds), np.concatenate(ranges), np.concatenate(offsets), noise
 
@@ -100,7 +98,7 @@ def main():
             runs = list(pool.map(_offsets, [(seed, laser, args.duration) for seed in range(1, args.seeds + 1)]))
             kind, true_range, offset = (np.concatenate([r[i] for r in runs]) for i in range(3))
             noise = np.median([r[3] for r in runs])
-            for value, name in ((1, "anchor (wall centroid)"), (0, "own return")):
+            for value, name in ((1, "anchor (on its segment's line)"), (0, "own return")):
                 cells = []
                 for lo, hi in BINS:
                     m = (kind == value) & (true_range >= lo) & (true_range < hi)

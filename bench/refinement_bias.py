@@ -21,17 +21,14 @@ seeds to resolve it); here it is measured where nothing else can be blamed:
 
 Rows: the low-cost laser of bench/sensor_matrix.py (2 cm + 1 % of range, 12 m, 720 beams;
 no dropouts or mixed pixels, which only thin the scans), its noise in one scan of the pair
-only, two of the refinement's constants changed, a start 1 % long, constant-noise lasers,
-and the URG-04LX-like laser (started long, without the returns near its range limit, with
-a longer range). Rows 17-26: pairs along the office corridor instead of the route's
-(the laser on the corridor's centre line heading along it), where matches come out
-longest, with the reference's wall lines partly replaced by the simulator's walls
-(oracle rows: its residual origins or its normals on the true walls, or the offsets of
-the returns on walls across the corridor mirrored or shuffled) and with the 6-beam line
-fit a 1 cm laser gets. Rows 27-30: those returns' origins left where the noise put them,
-and what else their own noise decides (where they are paired, their normals, the
-refinement's range-limit test) taken from the truth instead, one at a time and together.
-Rows 31-32: which returns the reference keeps decided on the noise-free returns.
+only, its residuals measured from the reference's returns instead of from where their
+beams meet their wall lines, a wider Huber scale, a start 1 % long, constant-noise lasers,
+the URG-04LX-like laser (started long, without the returns near its range limit, with a
+longer range), the default laser in the office and outdoors. Rows 17-21: pairs along the
+office corridor instead of the route's (the laser on the corridor's centre line heading
+along it), with the 6-beam line fit a 1 cm laser gets in the last. Rows 22-23: the
+URG-04LX-like laser on routes through the corridors scene (bare corridors between lobbies),
+as recorded and on noise-free returns with the noisy laser's lines (their geometry alone).
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
      [--rows N ...]
@@ -59,8 +56,8 @@ ROWS = [
     ("low-cost: 2 cm + 1 % of range, 12 m, 720 b", LOW_COST, (1.0, 1.0), {}),
     ("  noise in the new scan only", LOW_COST, (0.0, 1.0), {}),
     ("  noise in the reference scan only", LOW_COST, (1.0, 0.0), {}),
-    ("  residuals from the points (no wall-line anchors)", LOW_COST, (1.0, 1.0),
-     {"ANCHOR_NEIGHBOURS": 10**9}),
+    ("  residuals from the returns (not where their beams meet their lines)", LOW_COST, (1.0, 1.0),
+     {"origins": "returns"}),
     ("  Huber scale 0.2 m (10×)", LOW_COST, (1.0, 1.0), {"HUBER": 0.2}),
     ("  started 1 % long (as from a long KISS-ICP answer)", LOW_COST, (1.0, 1.0),
      {"start_scale": 1.01}),
@@ -79,42 +76,17 @@ ROWS = [
     ("  started 1 % long", {}, (1.0, 1.0), {"scene": "outdoor", "start_scale": 1.01}),
     ("  720 beams", dict(beams=720), (1.0, 1.0), {"scene": "outdoor"}),
     # Pairs along the office corridor (the laser on its centre line, ±0.2 m, heading along
-    # it), where a drive's matches come out longest; the oracle rows put the reference's
-    # residual origins (anchors) or its line normals on the true walls (only a simulator
-    # knows them), to tell which part of the reference's wall lines carries the bias.
+    # it), where a drive's matches come out longest.
     ("low-cost, pairs along the corridor", LOW_COST, (1.0, 1.0), {"pairs": "corridor"}),
     ("  noise in the new scan only", LOW_COST, (0.0, 1.0), {"pairs": "corridor"}),
     ("  noise in the reference scan only", LOW_COST, (1.0, 0.0), {"pairs": "corridor"}),
     ("constant 5.5 cm along the corridor, noise in the reference only", CONSTANT_5_5, (1.0, 0.0),
      {"pairs": "corridor"}),
-    ("  its normals on the true walls (oracle)", CONSTANT_5_5, (1.0, 0.0),
-     {"pairs": "corridor", "oracle": "normals"}),
-    ("  its residual origins (anchors and returns) on the true walls (oracle)", CONSTANT_5_5,
-     (1.0, 0.0), {"pairs": "corridor", "oracle": "anchors"}),
-    ("  only the returns used as their own origins on walls across the corridor, on the "
-     "true walls (oracle)", CONSTANT_5_5, (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across"}),
     ("  lines fitted over 6 beams (as for a 1 cm laser)", CONSTANT_5_5, (1.0, 0.0),
      {"pairs": "corridor", "fit": "narrow"}),
-    ("  those returns' offsets from their walls mirrored across the walls (oracle)", CONSTANT_5_5,
-     (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across mirrored"}),
-    ("  those returns' offsets from their walls shuffled among them (oracle)", CONSTANT_5_5,
-     (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across shuffled"}),
-    # The origins left where the noise put them; what else a return's own noise decides
-    # about it put on the truth instead.
-    ("  those returns paired where their beams meet the true walls, origins left (oracle)",
-     CONSTANT_5_5, (1.0, 0.0), {"pairs": "corridor", "oracle": "returns across paired"}),
-    ("  those returns' normals on the true walls, origins left (oracle)", CONSTANT_5_5, (1.0, 0.0),
-     {"pairs": "corridor", "oracle": "returns across normals"}),
-    ("  without the refinement's range-limit test (from the new scan's origin)", CONSTANT_5_5,
-     (1.0, 0.0), {"pairs": "corridor", "oracle": "unlimited"}),
-    ("  those three together (oracle)", CONSTANT_5_5, (1.0, 0.0),
-     {"pairs": "corridor", "oracle": "returns across paired normals unlimited"}),
-    # Which returns are kept (on a line, straight, clear of the range limit) decided on
-    # the same beams' noise-free returns; their normals and origins as the noise put them.
-    ("  the returns kept that the noise-free scan would keep (oracle)", CONSTANT_5_5, (1.0, 0.0),
-     {"pairs": "corridor", "oracle": "kept"}),
-    ("low-cost along the corridor, the returns kept that the noise-free scan would keep (oracle)",
-     LOW_COST, (1.0, 1.0), {"pairs": "corridor", "oracle": "kept"}),
+    ("URG-04LX-like, corridors scene", URG, (1.0, 1.0), {"scene": "corridors"}),
+    ("  without noise, its lines fitted as for 3 cm (their geometry alone)", URG, (0.0, 0.0),
+     {"scene": "corridors", "fit": "noisy"}),
 ]
 
 
@@ -183,6 +155,8 @@ def _measure_row(job):
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
     if options.get("fit") == "narrow":
         fit_noise = None
+    elif options.get("fit") == "noisy":  # noise-free returns, the laser model's noise's lines
+        noise = fit_noise = model.range_noise
     # Lines near the range limit are left out as RefinedScanMatcher does (CLEAR_OF_LIMIT).
     usable_range = model.range_max - (point_to_line.CLEAR_OF_LIMIT * noise
                                       if noise <= point_to_line.NOT_A_NOISE else 0.0)
@@ -202,11 +176,8 @@ def _measure_row(job):
                 scan_to_points(earlier_scan), fit_noise, usable_range,
                 small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE,
                 beam_spacing=abs(earlier_scan.angle_increment))
-            if options.get("oracle") == "kept" and reference is not None:
-                reference = _kept_as_noise_free(earlier_scan, true[0], fit_noise, usable_range)
-            elif options.get("oracle") and reference is not None:
-                reference = _on_true_walls(reference, options["oracle"], world, first,
-                                           earlier_scan, true[0], rng)
+            if options.get("origins") == "returns" and reference is not None:
+                reference = _from_returns(earlier_scan, fit_noise, usable_range)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])
@@ -242,91 +213,15 @@ def _corridor_poses(world, count, rng):
     return np.column_stack([x, y, heading])
 
 
-def _kept_as_noise_free(scan, true_ranges, fit_noise, usable_range):
-    """The reference of `scan` (a noisy laser's: the wide fit) with the returns kept that
-    the same beams' noise-free returns `true_ranges` would keep (oracle); their normals
-    and residual origins from the noisy returns."""
+def _from_returns(scan, fit_noise, usable_range):
+    """The reference of `scan` with its lines as a recording fits them, paired with and its
+    residuals measured from the returns themselves."""
     from sclam_ros.frontend import point_to_line
-    from sclam_ros.frontend.scan_matching import scan_to_points, valid_beams
+    from sclam_ros.frontend.scan_matching import scan_to_points
 
-    beams = np.flatnonzero(valid_beams(scan))  # scan_to_points' points, in order
     points = scan_to_points(scan)[:, :2]
-    angle = scan.angles()[beams]
-    noise_free = true_ranges[beams, None] * np.column_stack([np.cos(angle), np.sin(angle)])
-    normals, anchors, _ = point_to_line.line_decisions(points, fit_noise, usable_range)
-    keep = point_to_line.line_decisions(noise_free, fit_noise, usable_range)[2]
-    return point_to_line.ReferenceScan.of_kept(points, normals, anchors, keep, usable_range)
-
-
-def _on_true_walls(reference, which, world, pose, scan, true_ranges, rng):
-    """`reference` (of `scan`, taken at laser pose `pose`) with parts of it taken from the
-    simulator's walls, by `which`:
-
-      "normals"   its normals the true walls';
-      "anchors"   its residual origins moved along the true wall's normal onto the wall;
-      "returns across", "... mirrored", "... shuffled"   only the origins that are returns
-                  themselves, on walls facing along the laser's x axis: put on their walls,
-                  their offsets from them mirrored across them, or shuffled among them
-                  (with `rng`);
-      "returns across paired|normals|unlimited ..."   those returns' origins left where
-                  they are, and with each word: they are paired where their beams meet
-                  the true walls, their normals are the true walls', or the refinement
-                  does not test the range limit (as "unlimited" alone, for every pair).
-
-    Each reference point is found among the scan's points (from_points keeps them as they
-    are); its beam's noise-free return gives the wall, the nearest segment its direction."""
-    import dataclasses
-
-    from scipy.spatial import cKDTree
-
-    from sclam_ros.core import se2
-    from sclam_ros.frontend.scan_matching import scan_to_points, valid_beams
-
-    beams = np.flatnonzero(valid_beams(scan))  # scan_to_points' points, in order
-    beam_of = {tuple(p): n for p, n in zip(scan_to_points(scan)[:, :2], beams)}
-    n = np.array([beam_of[tuple(p)] for p in reference.points])
-    angle = scan.angles()[n]
-    wall_point = true_ranges[n, None] * np.column_stack([np.cos(angle), np.sin(angle)])
-    world_point = se2.transform_points(pose, wall_point)
-    seg = world.segments
-    start, edge = seg[None, :, :2], seg[None, :, 2:] - seg[None, :, :2]
-    along = np.clip(((world_point[:, None] - start) * edge).sum(-1) / (edge * edge).sum(-1), 0, 1)
-    nearest = np.linalg.norm(world_point[:, None] - (start + along[..., None] * edge), axis=-1).argmin(1)
-    direction = edge[0, nearest] / np.linalg.norm(edge[0, nearest], axis=1)[:, None]
-    along_wall = se2.rotate_inverse(pose[2], direction)  # in the laser frame
-    normal = np.column_stack([-along_wall[:, 1], along_wall[:, 0]])
-    normal *= np.sign((normal * reference.normals).sum(1))[:, None]
-    if which == "normals":
-        return dataclasses.replace(reference, normals=normal)
-    if which == "unlimited":
-        return dataclasses.replace(reference, usable_range=np.inf)
-    offset = ((reference.anchors - wall_point) * normal).sum(1)
-    if which == "anchors":
-        return dataclasses.replace(reference, anchors=reference.anchors - offset[:, None] * normal)
-    # Origins that are returns themselves, on walls facing along the laser's x axis: put
-    # on their walls, or their offsets from them mirrored or shuffled among them.
-    group = np.all(reference.anchors == reference.points, axis=1) & (np.abs(normal[:, 0]) > 0.7)
-    words = which.split()[2:]
-    if words and words[0] in ("paired", "normals", "unlimited"):
-        # Their origins left; their pairing positions (the KD-tree's points) or normals
-        # taken from the true walls, or no range-limit test.
-        changes = {}
-        if "paired" in words:
-            paired = reference.points.copy()
-            hit = group & np.all(np.isfinite(wall_point), axis=1)  # a true return in range
-            paired[hit] = wall_point[hit]
-            changes["tree"] = cKDTree(paired)
-        if "normals" in words:
-            changes["normals"] = np.where(group[:, None], normal, reference.normals)
-        if "unlimited" in words:
-            changes["usable_range"] = np.inf
-        return dataclasses.replace(reference, **changes)
-    moved = offset * group
-    if which.endswith("mirrored"):
-        moved = 2.0 * moved
-    elif which.endswith("shuffled"):
-        moved[group] = offset[group] - rng.permutation(offset[group])
-    return dataclasses.replace(reference, anchors=reference.anchors - moved[:, None] * normal)
+    normals, _, keep = point_to_line.line_decisions(points, fit_noise, usable_range)
+    return point_to_line.ReferenceScan.of_kept(points, normals, points, keep, usable_range)
 
 
 def main():

@@ -227,11 +227,11 @@ def _warn_about_input(rejections, frontend) -> None:
     from sclam_ros.frontend import point_to_line
 
     refined = frontend.refined_matcher if frontend is not None else None
-    if refined is not None and refined.wide_normals:
+    if refined is not None and refined.fits_segments:
         log.info("noisy laser (range noise %.0f mm measured on its first scans, from %.0f mm "
-                 "on): wall directions fitted over %.2f m of wall instead of %d beams",
+                 "on): wall lines fitted to whole straight segments instead of %d beams",
                  1e3 * median(refined.range_noises), 1e3 * point_to_line.NOISY_RANGE,
-                 point_to_line.NORMAL_RADIUS, point_to_line.NORMAL_NEIGHBOURS)
+                 point_to_line.NORMAL_NEIGHBOURS)
     unrefined = refined.unrefined if refined is not None else {}
     if unrefined:
         # KISS-ICP's motion alone is biased where the refinement fails (point_to_line.py).

@@ -21,47 +21,24 @@ from scipy.spatial import cKDTree
 
 from sclam_ros.core import se2
 from sclam_ros.frontend.scan_matching import range_limit, valid_beams
+from sclam_ros.frontend.wall_segments import scan_pieces, wall_lines
 
 NORMAL_NEIGHBOURS = 6
-# Noisy lasers: a wall's direction is fitted over the points within NORMAL_RADIUS (at most
-# WIDE_NEIGHBOURS: at the 1 cm beam spacing of a URG-04LX at 2 m, 0.3 m of wall; at least
-# the NORMAL_NEIGHBOURS nearest, so the sparse beams on a far wall still make a line). Six
-# beams of a 3 cm laser span a few cm of wall: their line is off by tens of degrees
-# (test_point_to_line), which lets the along-wall offsets of nearest-sample pairing (the
-# point-to-point bias this refinement removes) back into the motion. Measured with
-# `python bench/sensor_matrix.py --seeds 10` (120 s each), six beams against the wide fit:
-# URG-04LX-like (3 cm, 5.6 m) match scale 0.9940 → 0.9973, radii RMS error 0.53 → 0.29 %,
-# RMS err/σ 2.0 → 1.2; 5 cm noise 0.9975 → 1.0001, 0.69 → 0.19 %. Where the noise is low
-# six beams are right: the wide fit made the outdoor scene (poles, trunks; 1 cm) worse
-# (radii RMS error 0.5 → 1.5 % on 4 seeds).
-NORMAL_RADIUS = 0.25  # m
-WIDE_NEIGHBOURS = 30
-# On a noisy laser a point of the new scan is paired with the nearest point of the reference,
-# and among several candidates within the noise the nearest is the one whose noise brings it
-# closest: measured from that point, the residual shrinks wherever the new scan already is,
-# and the match stays near its starting point (KISS-ICP's answer, which leans toward the
-# odometry guess). So the residual is measured to the wall line itself, through the centroid
-# of the point's neighbourhood, where at least ANCHOR_NEIGHBOURS of them lie within
-# NORMAL_RADIUS (a sparse far wall's neighbourhood spans metres: its centroid lies far along
-# the wall from the pairing point, where an error of the fitted direction moves the line)
-# and their spread across the line is within ANCHOR_SPREAD times the laser's range noise (a
-# clean wall's is the noise times the cosine of the incidence; near a corner the other
-# wall's points widen it and pull the centroid off the wall: on a simulated box room with
-# a URG-04LX-like laser, 2 mm toward the laser within 0.5 m of a corner without this test,
-# 0.25 mm with it). Measured with bench/sensor_matrix.py (20 seeds of 120 s, paired), the
-# points themselves → their lines: URG-04LX-like radii −0.17/−0.21 → −0.10/−0.14 % (RMS
-# 0.24/0.25 → 0.17/0.18 %), laser yaw 0.16 → 0.07° RMS (err/σ 1.5 → 0.8); low-cost
-# (2 cm + 1 % of range) +0.01/−0.04 → +0.12/+0.09 % (RMS 0.30 → 0.26 %: the range-
-# proportional noise's part, +0.12 % on its own, is not understood); 5 cm unchanged.
-ANCHOR_NEIGHBOURS = 10
-ANCHOR_SPREAD = 1.0
-# A wide neighbourhood is a wall while its spread across the line is below this fraction of
-# its spread along it (RMS values; 0.3 m of a wall with 3 cm noise: about 0.35, so about half
-# of such a wall passes; 30 beams at a right-angle corner, two 0.15 m arms: 0.58) and below
-# WIDE_NOISE_SPREAD times the laser's measured range noise (scattered points, e.g. poles,
-# that happen to lie along a direction are not a wall).
-WIDE_STRAIGHTNESS = 0.3
-WIDE_NOISE_SPREAD = 2.0
+# A noisy laser's lines (NOISY_RANGE) are its walls' whole straight segments instead, fitted
+# on the returns' ranges, each return's residual origin (anchor) where its beam meets its
+# segment's line (frontend/wall_segments.py). Six beams of a 3 cm laser span a few cm of
+# wall: their line is off by tens of degrees (test_point_to_line), which lets the along-wall
+# offsets of nearest-sample pairing (the point-to-point bias this refinement removes) back
+# into the motion; paired with the nearest noisy return and measured from it, a residual
+# shrinks wherever the new scan already is, and the match stays near its start.
+# Measured with `python bench/sensor_matrix.py --rows 2 3 4 10 11 --seeds 80 --duration
+# 120` (paired seeds), against lines fitted over 0.25 m of wall around each return with
+# their centroids as anchors (RMS errors in parentheses): corridors scene, URG-04LX-like radii
+# and base +0.185 / +0.190 / +0.209 → +0.034 / +0.048 / +0.043 % (0.25 / 0.26 / 0.37 →
+# 0.15 / 0.14 / 0.30 %), low-cost +0.18 / +0.18 / +0.19 → +0.04 / −0.01 / +0.01 % (0.39 /
+# 0.40 / 0.49 → 0.25 / 0.25 / 0.41 %); office, low-cost +0.078 / +0.073 / +0.007 → +0.067 /
+# +0.039 / +0.015 % (0.26 / 0.25 / 0.31 → 0.16 / 0.14 / 0.24 %), URG-04LX-like RMS 0.14 /
+# 0.13 / 0.20 → 0.13 / 0.10 / 0.17 %, 5 cm 0.21 / 0.21 / 0.27 → 0.18 / 0.17 / 0.25 %.
 # Which lasers are noisy is measured, not configured (a datasheet's range accuracy includes
 # bias and says little about the beam-to-beam noise that matters here): range_noise() of
 # each of the first NOISE_SCANS reference scans of a recording, their median against
@@ -88,7 +65,7 @@ MAX_PAIR_DISTANCE = 0.15  # m; KISS-ICP's answer is within a few cm
 # ellipse: outdoors radii and base +0.080 / +0.067 / +0.047 → +0.025 / +0.013 / −0.013 %
 # (± 0.02 / 0.02 / 0.05), match scale 1.0007 → 0.9995, laser x / y RMS 3.5 / 4.1 → 3.1 /
 # 3.5 mm; the indoor rows on 1 cm lasers move by 0.001 % at most. A noisy laser's anchors
-# are averages along the wall, not single returns (the wide fit): it keeps the circle.
+# lie on whole segments' lines, not at single returns (wall_segments): it keeps the circle.
 ALONG_REACH = 0.6
 ALONG_CAP = 1.0  # m
 MIN_COS_INCIDENCE = 0.2
@@ -112,38 +89,26 @@ MAX_CORRECTION_ANGLE = 0.02  # rad
 # true range is within 4σ of the limit lengthens the matches by 0.14 ± 0.02 %. The true
 # range is unknown, and leaving out returns by their measured range is the same cut again
 # (bench/refinement_bias.py: −0.24 % with those within 3σ of the limit left out, against
-# −0.14 %). What is left out instead is a pair whose reference wall line (its anchor, an
-# average over the neighbourhood where the wall is dense enough, else the point) lies
+# −0.14 %). What is left out instead is a pair whose reference wall line (its anchor: on
+# a noisy laser where the return's beam meets its segment's line, else the return) lies
 # within CLEAR_OF_LIMIT times the laser's range noise of the limit, from either scan: on
 # those pairs +0.02 ± 0.01 %; in the calibrations (bench/sensor_matrix.py --seeds 20) radii
 # −0.10 / −0.14 → −0.08 / −0.11 %, base −0.04 → −0.01 %, match scale 0.9986 → 0.9995.
 # Wider margins (3σ + 0.25 m, + 0.5 m) and testing the new point's own range, or its beam's
 # range to the reference line, did no better (measured ad hoc on the same kind of pairs).
-# Which lines are clear of the limit is judged as BY_NEIGHBOURS says: an anchored line's
-# stretch of wall within the usable range, a return's neighbours' median range.
+# Which lines are clear of the limit is judged as BY_NEIGHBOURS says: on a noisy laser by
+# the anchor (where the noise-free beam would have hit the fitted line), else by the
+# return's neighbours' median range.
 CLEAR_OF_LIMIT = 3.0
-# BY_NEIGHBOURS: how a reference return is used (its wall line anchored, the return itself
-# as the residual's origin, or left out) is decided from its neighbours in beam order, the
-# return itself left out, never from where its own noise put it. Decisions taken from the
-# return's own position choose it for its noise, and the origins the refinement then
-# measures from sit off the walls (`python bench/reference_bias.py`, offsets along the
-# line's normal against the simulator's walls):
-#   - whether a wall is dense enough to anchor, by counting the returns within
-#     NORMAL_RADIUS of the return: on a wall seen at a glancing angle noise moves a return
-#     along the wall, and one pushed away from the laser lands where the beams are
-#     sparser, so the returns left to be their own origins sat beyond their walls (2 cm +
-#     1 % of range noise, no mixed pixels: +1.2 mm at 2-4 m, +0.8 mm at 4-6 m; now +0.1 and
-#     +0.6 mm). The density is now the wall's length 2·NORMAL_RADIUS over the beam spacing
-#     on it, from the line through the neighbours (_densely_sampled); a return whose
-#     neighbours call the wall dense but whose own neighbourhood fails the anchor's tests
-#     is not used.
-#   - whether a return is clear of the range limit, by its own range: that is the
-#     driver's cut again. Now the median range of its neighbours (_neighbours_within).
-# Measured with `python bench/sensor_matrix.py --seeds 20 --duration 120` (paired seeds),
-# before → after: URG-04LX-like radii and base −0.08 / −0.11 / −0.01 → +0.01 / −0.03 /
-# +0.08 %, match scale 0.9995 → 0.9998; low-cost +0.11 / +0.08 / +0.09 → +0.06 / +0.03 /
-# +0.04 % (RMS 0.26 / 0.24 / 0.31 → 0.22 / 0.20 / 0.26 %), match scale 1.0015 → 1.0009;
-# 5 cm within its standard errors (+0.03 / +0.01 / +0.04 → +0.05 / +0.03 / +0.06 %).
+# BY_NEIGHBOURS: whether a reference return is used is decided from its neighbours in beam
+# order, the return itself left out, never from where its own noise put it. Decisions taken
+# from the return's own position choose it for its noise, and the origins the refinement
+# then measures from sit off the walls (`python bench/reference_bias.py`, offsets along the
+# line's normal against the simulator's walls). Judged by its own range whether a return is
+# clear of the range limit is the driver's cut again; judged by the median range of its
+# neighbours (_neighbours_within) it is not (test_point_to_line's range-limit test).
+# (A noisy laser's anchors are where its beams meet their segments' lines: nothing about
+# them depends on a return's own noise but through the fit of its whole segment.)
 # SMALL_OBJECT: on a laser whose lines are fitted over NORMAL_NEIGHBOURS beams, a return on
 # an object narrower than this (a tree trunk, a pole) gets no line where the laser's
 # measured range noise is SMALL_OBJECT_NOISE or more. Six beams on such an object span its
@@ -164,17 +129,14 @@ CLEAR_OF_LIMIT = 3.0
 # nearest others or its beam-order neighbours): laser y RMS 13-15 mm, radii RMS 0.5-1 %.
 SMALL_OBJECT = 1.0  # m
 SMALL_OBJECT_NOISE = 0.005  # m
-# _object_extent's breakpoints: consecutive returns farther apart than a surface seen at
-# this incidence (from its plane) or steeper could put them, plus 3σ of a low-noise
-# laser's range noise (the adaptive breakpoint detector, Borges & Aldon 2004).
-BREAKPOINT_INCIDENCE = math.radians(10.0)
 
 
 @dataclass
 class ReferenceScan:
     """The points of a scan (laser frame) with a line normal at each, ready for pairing."""
 
-    points: np.ndarray  # (N, 2), in the KD-tree: what a new point is paired with
+    points: np.ndarray  # (N, 2), in the KD-tree: what a new point is paired with (anchors
+    # on a noisy laser, so that no return is chosen for pairing by its own noise)
     normals: np.ndarray  # (N, 2)
     tree: cKDTree
     anchors: np.ndarray  # (N, 2) a point of each one's wall line, the residual's origin
@@ -190,8 +152,9 @@ class ReferenceScan:
                     beam_spacing=None):
         """The scan's points on lines, with their normals, or None if fewer than 10 are.
         noise: None fits each line over NORMAL_NEIGHBOURS beams and measures residuals from
-        the points themselves; a noisy laser's measured range noise (m) fits it over
-        NORMAL_RADIUS of wall and measures them from the fitted line (ANCHOR_NEIGHBOURS).
+        the points themselves; a noisy laser's measured range noise (m) fits lines to whole
+        straight segments and pairs with and measures from where the beams meet them
+        (wall_segments.wall_lines).
         usable_range (m): lines farther than it are left out (see CLEAR_OF_LIMIT).
         small_objects: with noise None, returns on objects narrower than SMALL_OBJECT get
         no line (the laser's noise is enough to choose which of their lines pass).
@@ -202,7 +165,7 @@ class ReferenceScan:
         if len(points) < NORMAL_NEIGHBOURS + 1:
             return None
         normals, anchors, keep = line_decisions(points, noise, usable_range, small_objects)
-        return cls.of_kept(points, normals, anchors, keep, usable_range,
+        return cls.of_kept(anchors, normals, anchors, keep, usable_range,
                            beam_spacing if noise is None else None)
 
     @classmethod
@@ -221,33 +184,14 @@ class ReferenceScan:
 def line_decisions(points, noise=None, usable_range=np.inf, small_objects=False):
     """(normals (N, 2), residual origins (N, 2), keep (N,) bool) of each of the scan's points
     (N ≥ NORMAL_NEIGHBOURS + 1, beam order), as ReferenceScan.from_points describes."""
-    tree = cKDTree(points)
-    wide = noise is not None
-    dist, idx = tree.query(points, min(WIDE_NEIGHBOURS if wide else NORMAL_NEIGHBOURS,
-                                       len(points)))
-    anchors = points
-    if wide:
-        near = (np.arange(dist.shape[1]) < NORMAL_NEIGHBOURS) | (dist <= NORMAL_RADIUS)
-        normals, across, along, centres = _line_fit(points, idx, near)
-        straight = (across < MAX_LINE_SPREAD) | (
-            (across < WIDE_STRAIGHTNESS * along) & (across < WIDE_NOISE_SPREAD * noise))
-        dense = _densely_sampled(points, usable_range)
-        on_line = dense & ((dist <= NORMAL_RADIUS).sum(axis=1) >= ANCHOR_NEIGHBOURS) & (
-            across < ANCHOR_SPREAD * noise)
-        # A return is its own residual origin only where its neighbours say the wall is
-        # sparse. Where they say it is dense but its own neighbourhood fails the anchor's
-        # tests (a gap, the range limit's cut, its own noise), it is not used.
-        straight &= on_line | ~dense
-        anchors = np.where(on_line[:, None], centres, points)
-        # An anchored line is clear of the limit by _densely_sampled's account.
-        clear = on_line | _neighbours_within(points, usable_range)
-    else:
-        normals, across, along, _ = _line_fit(points, idx)
-        straight = across < MAX_LINE_SPREAD
-        if small_objects:
-            straight &= _object_extent(points) >= SMALL_OBJECT
-        clear = _neighbours_within(points, usable_range)
-    return normals, anchors, straight & (along > 0) & clear
+    if noise is not None:
+        return wall_lines(points, noise, usable_range)
+    _, idx = cKDTree(points).query(points, min(NORMAL_NEIGHBOURS, len(points)))
+    normals, across, along = _line_fit(points, idx)
+    straight = across < MAX_LINE_SPREAD
+    if small_objects:
+        straight &= _object_extent(points) >= SMALL_OBJECT
+    return normals, points, straight & (along > 0) & _neighbours_within(points, usable_range)
 
 
 def _along_reach(points, normals, beam_spacing):
@@ -269,50 +213,17 @@ def _beam_neighbours(points):
 
 
 def _object_extent(points):
-    """(N,) m: the extent of the object each return lies on. The scan (beam order) is cut
-    where consecutive returns are farther apart than BREAKPOINT_INCIDENCE allows; a
-    piece's extent is the diagonal of the box around its returns. A full turn's last
-    and first returns are consecutive too: an object across the seam is one piece."""
-    n = len(points)
-    bearing = np.arctan2(points[:, 1], points[:, 0])
-    ranges = np.hypot(points[:, 0], points[:, 1])
-    following = np.roll(np.arange(n), -1)  # the last return's successor is the first
-    dphi = np.abs(np.angle(np.exp(1j * (bearing[following] - bearing))))
-    # Returns BREAKPOINT_INCIDENCE or more apart in bearing (dropouts, a field of view's
-    # ends) are never one surface.
-    near = dphi < BREAKPOINT_INCIDENCE
-    reach = (np.minimum(ranges, ranges[following]) * np.sin(dphi)
-             / np.sin(np.where(near, BREAKPOINT_INCIDENCE - dphi, 1.0)))
-    cut = ~near | (np.hypot(*(points[following] - points).T) > reach + 3.0 * NOISY_RANGE)
-    if not cut.any():
-        return np.full(n, np.inf)  # one closed surface around the laser
-    # Pieces start after each cut; rolled so that the first piece starts at index 0.
-    start = int(np.argmax(cut)) + 1
-    order = np.roll(np.arange(n), -start)
-    piece = np.concatenate([[0], np.cumsum(cut[order][:-1])])
-    starts = np.flatnonzero(np.diff(piece, prepend=-1))
-    ordered = points[order]
-    size = np.maximum.reduceat(ordered, starts) - np.minimum.reduceat(ordered, starts)
-    extent = np.empty(n)
-    extent[order] = np.hypot(size[:, 0], size[:, 1])[piece]
+    """(N,) m: the extent of the object each return lies on: the diagonal of the box
+    around its piece of the scan (wall_segments.scan_pieces)."""
+    # A low-noise laser's breakpoint margin: 3σ of NOISY_RANGE.
+    pieces, closed = scan_pieces(points, 3.0 * NOISY_RANGE)
+    if closed:
+        return np.full(len(points), np.inf)  # one closed surface around the laser
+    extent = np.empty(len(points))
+    for piece in pieces:
+        size = points[piece].max(axis=0) - points[piece].min(axis=0)
+        extent[piece] = math.hypot(size[0], size[1])
     return extent
-
-
-def _densely_sampled(points, usable_range=np.inf):
-    """(N,) bool: whether the beams sample the wall at each return densely enough for its
-    line to be anchored (ANCHOR_NEIGHBOURS beams within NORMAL_RADIUS) and that stretch
-    of wall lies within the usable range, judged from the line through its neighbours in
-    beam order (BY_NEIGHBOURS): the wall's length 2·NORMAL_RADIUS over the beams' spacing
-    on it, distance·spacing / cos(incidence)."""
-    idx, exists = _beam_neighbours(points)
-    normals, _, _, centres = _line_fit(points, idx, exists)
-    bearing = np.arctan2(points[:, 1], points[:, 0])
-    # rad between consecutive returns: the median holds while fewer than half are missing
-    spacing = float(np.median(np.abs(np.diff(bearing))))
-    distance = np.hypot(centres[:, 0], centres[:, 1])
-    cos_incidence = np.abs(np.sum(normals * centres, axis=1)) / np.maximum(distance, 1e-9)
-    return ((2.0 * NORMAL_RADIUS * cos_incidence >= ANCHOR_NEIGHBOURS * distance * spacing)
-            & (distance + NORMAL_RADIUS <= usable_range))
 
 
 def _neighbours_within(points, usable_range):
@@ -325,16 +236,12 @@ def _neighbours_within(points, usable_range):
     return np.nanmedian(ranges, axis=1) <= usable_range
 
 
-def _line_fit(points, idx, near=None):
-    """(normals (N, 2), RMS spread across (N,), RMS spread along (N,), centroids (N, 2)) of
-    the line fitted to each point's neighbours points[idx] (N, k), those where `near` (N, k)
-    is False left out."""
-    weight = np.ones(idx.shape) if near is None else near.astype(float)
-    count = weight.sum(axis=1)
+def _line_fit(points, idx):
+    """(normals (N, 2), RMS spread across (N,), RMS spread along (N,)) of the line fitted to
+    each point's neighbours points[idx] (N, k)."""
     nbr = points[idx]  # (N, k, 2)
-    centre = (nbr * weight[..., None]).sum(axis=1, keepdims=True) / count[:, None, None]
-    dx, dy = np.moveaxis(nbr - centre, -1, 0)  # (N, k) each
-    dx, dy = dx * weight, dy * weight  # weights are 0 or 1
+    dx, dy = np.moveaxis(nbr - nbr.mean(axis=1, keepdims=True), -1, 0)  # (N, k) each
+    count = idx.shape[1]
     # The 2×2 covariance of each neighbourhood and its eigen-decomposition in closed form
     # (np.linalg.eigh on N small matrices was a quarter of this function's time).
     cxx, cyy, cxy = (np.sum(dx * dx, 1) / count, np.sum(dy * dy, 1) / count,
@@ -343,7 +250,7 @@ def _line_fit(points, idx, near=None):
     direction = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # of the largest spread
     normals = np.column_stack([-np.sin(direction), np.cos(direction)])  # across the line
     return (normals, np.sqrt(np.maximum(half_sum - radius, 0.0)),
-            np.sqrt(np.maximum(half_sum + radius, 0.0)), centre[:, 0, :])
+            np.sqrt(np.maximum(half_sum + radius, 0.0)))
 
 
 def range_noise(scan):
@@ -377,10 +284,10 @@ class RefinedScanMatcher:
     def __init__(self, matcher):
         self.matcher = matcher
         # The laser is noisy (NOISY_RANGE), judged from range_noise() of the first
-        # NOISE_SCANS reference scans, then fixed: ReferenceScan.from_points fits wide.
-        self.wide_normals = False
+        # NOISE_SCANS reference scans, then fixed: ReferenceScan.from_points fits segments.
+        self.fits_segments = False
         self.range_noises = []
-        self._wide_noise = None  # their median while wide_normals, for from_points(noise=)
+        self._segment_noise = None  # their median while fits_segments, for from_points(noise=)
         self._clearance = 0.0  # m kept clear of the range limit (CLEAR_OF_LIMIT)
         self._small_objects = False  # their median is SMALL_OBJECT_NOISE or more
         self._reference = None  # ReferenceScan of the last scan the matcher gave a pose
@@ -426,13 +333,13 @@ class RefinedScanMatcher:
         if noise is not None:  # the judgement changes only here, so it is made only here
             self.range_noises.append(noise)
             median = float(np.median(self.range_noises))
-            self.wide_normals = NOISY_RANGE <= median <= NOT_A_NOISE
-            self._wide_noise = median if self.wide_normals else None
+            self.fits_segments = NOISY_RANGE <= median <= NOT_A_NOISE
+            self._segment_noise = median if self.fits_segments else None
             # Beyond NOT_A_NOISE the estimate says nothing about the laser: no clearance.
             self._clearance = CLEAR_OF_LIMIT * median if median <= NOT_A_NOISE else 0.0
             self._small_objects = median >= SMALL_OBJECT_NOISE
         usable = range_limit(scan, self.matcher.config.max_range) - self._clearance
-        self._reference = ReferenceScan.from_points(points, self._wide_noise, usable,
+        self._reference = ReferenceScan.from_points(points, self._segment_noise, usable,
                                                     self._small_objects,
                                                     abs(float(scan.angle_increment)))
 
