@@ -44,9 +44,13 @@ MIN_SEGMENT_LENGTH = 0.3  # m
 # A beam that meets its line more glancingly than this has no anchor: where it meets the
 # fitted line moves by metres with a small error of the line's direction.
 MIN_COS_INCIDENCE = 0.1
+# Returns near a corner within AMBIGUOUS times the noise of the other wall's line are not
+# used, where the two lines are CORNER or more apart in direction (wall_lines).
 AMBIGUOUS = 3.0
 CORNER = math.radians(10.0)
 RANGE_FIT_ITERATIONS = 5
+# These constants are first choices, not tuned one by one: they are measured together, as
+# the calibrations they give (bench/sensor_matrix.py, point_to_line's NORMAL_NEIGHBOURS).
 
 
 def scan_pieces(points, margin):
