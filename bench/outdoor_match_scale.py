@@ -113,7 +113,10 @@ def run_case(job):
 
 
 def _scale(rows, which, mask=None):
-    """Information-weighted Σ w z·z_true / Σ w |z_true|² of column `which`."""
+    """Information-weighted Σ w z·z_true / Σ w |z_true|² of column `which` (nan without
+    rows: a recording none of whose matches the refinement confirmed)."""
+    if not rows:
+        return np.nan
     w = np.array([r[0] for r in rows])
     z_true = np.array([r[1] for r in rows])
     z = np.array([r[which] for r in rows])
