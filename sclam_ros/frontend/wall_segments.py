@@ -80,9 +80,10 @@ def scan_pieces(points, margin):
 def wall_lines(points, noise, usable_range=np.inf):
     """(normals (N, 2), anchors (N, 2), keep (N,) bool) of a noisy laser's returns `points`
     (N, 2, beam order) with range noise `noise` (m): each kept return's wall line (its
-    normal, and where the return's beam meets it). Returns on no straight segment, at a
-    grazing incidence to theirs, or whose anchor lies beyond `usable_range` (m) are not
-    kept (their normal is zero and their anchor the return itself)."""
+    normal, and where the return's beam meets it). Returns on no straight segment are not
+    kept (their normal is zero and their anchor the return itself), nor are those at a
+    grazing incidence to their line, whose anchor lies beyond `usable_range` (m), or that
+    lie near a corner within the noise of the other wall's line."""
     n = len(points)
     normals = np.zeros_like(points)
     anchors = points.copy()
@@ -109,7 +110,8 @@ def wall_lines(points, noise, usable_range=np.inf):
     # outlier is not one), the returns within AMBIGUOUS times the noise of the other's line
     # are not kept, up to the first that is clear of it.
     for normal, _, segment in lines:
-        for outside, inward in (((segment[0] - 1) % n, segment), ((segment[-1] + 1) % n, segment[::-1])):
+        ends = (((segment[0] - 1) % n, segment), ((segment[-1] + 1) % n, segment[::-1]))
+        for outside, inward in ends:  # the return just outside an end, the segment from it
             other = segment_of[outside]
             if other < 0 or other == segment_of[segment[0]]:
                 continue
