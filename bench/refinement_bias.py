@@ -172,12 +172,13 @@ def _measure_row(job):
             if clear_of_limit:
                 ranges[ranges > model.range_max - clear_of_limit * noise] = np.inf
             earlier_scan = _scan(ranges[0], model)
-            reference = point_to_line.ReferenceScan.from_points(
-                scan_to_points(earlier_scan), fit_noise, usable_range,
-                small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE,
-                beam_spacing=abs(earlier_scan.angle_increment))
-            if options.get("origins") == "returns" and reference is not None:
+            if options.get("origins") == "returns":
                 reference = _from_returns(earlier_scan, fit_noise, usable_range)
+            else:
+                reference = point_to_line.ReferenceScan.from_points(
+                    scan_to_points(earlier_scan), fit_noise, usable_range,
+                    small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE,
+                    beam_spacing=abs(earlier_scan.angle_increment))
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])

@@ -109,11 +109,11 @@ def wall_lines(points, noise, usable_range=np.inf):
     # at a corner (their lines CORNER or more apart in direction; a wall split in two by an
     # outlier is not one), the returns within AMBIGUOUS times the noise of the other's line
     # are not kept, up to the first that is clear of it.
-    for normal, _, segment in lines:
+    for index, (normal, _, segment) in enumerate(lines):
         ends = (((segment[0] - 1) % n, segment), ((segment[-1] + 1) % n, segment[::-1]))
         for outside, inward in ends:  # the return just outside an end, the segment from it
             other = segment_of[outside]
-            if other < 0 or other == segment_of[segment[0]]:
+            if other < 0 or other == index:
                 continue
             other_normal, other_distance, _ = lines[other]
             if abs(other_normal @ normal) > math.cos(CORNER):
@@ -181,12 +181,11 @@ def _line_on_ranges(p, noise):
     segment's returns p (n, 2), fitted on their ranges, or None where the segment is
     shorter than MIN_SEGMENT_LENGTH or the fit fails. Returns more than 3σ off the
     total-least-squares line are left out (a neighbouring surface's last return)."""
-    normal, centre, _, _ = _total_least_squares(p)
+    normal, centre, _, along = _total_least_squares(p)
     inliers = np.abs((p - centre) @ normal) <= 3.0 * noise
     if inliers.sum() >= MIN_SEGMENT_RETURNS and not inliers.all():
         p = p[inliers]
-        normal, centre, _, _ = _total_least_squares(p)
-    _, _, _, along = _total_least_squares(p)
+        normal, centre, _, along = _total_least_squares(p)
     if along * math.sqrt(12.0) < MIN_SEGMENT_LENGTH:  # a uniform stretch of length L: L/√12
         return None
     return _fit_on_ranges(p, normal, centre)
