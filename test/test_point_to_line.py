@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sclam_ros.frontend import point_to_line
+from sclam_ros.frontend import point_to_line, wall_segments
 from sclam_ros.core import se2
 from sclam_ros.sim.world import office_world
 
@@ -482,3 +482,30 @@ def test_pairing_along_lines_changes_nothing_where_the_beams_are_dense():
     z_circle, _ = point_to_line.refine(circle, new[near_new], motion + 0.01)
     z_ellipse, _ = point_to_line.refine(ellipse, new[near_new], motion + 0.01)
     assert np.allclose(z_circle, z_ellipse, atol=1e-9)
+
+
+def test_a_noisy_laser_measures_from_beam_lines_where_no_segment_is_long_enough():
+    """A surface with too few returns for a segment line (a car's side 8 m away: 9 beams)
+    still gets lines on a noisy laser, each over its return's beam neighbours, measured from
+    the return itself; the long wall's returns keep their segment's anchors."""
+    rng = np.random.default_rng(5)
+    bearing = np.radians(np.arange(-60.0, 121.0))
+    wall = (bearing > np.radians(40.0)) & (bearing < np.radians(140.0))  # y = 3 m
+    side = np.abs(np.tan(bearing) * 8.0) <= 0.6  # x = 8 m, 1.2 m long
+    with np.errstate(divide="ignore"):
+        ranges = np.where(wall, 3.0 / np.sin(bearing), 8.0 / np.cos(bearing))
+    keep = wall | side
+    ranges = ranges[keep] + rng.normal(0.0, 0.002, keep.sum())
+    points = np.column_stack([ranges * np.cos(bearing[keep]), ranges * np.sin(bearing[keep])])
+    on_side = points[:, 0] > 7.0
+    assert 6 <= on_side.sum() < wall_segments.MIN_SEGMENT_RETURNS
+
+    segment_normals, _, segment_keep = wall_segments.wall_lines(points, 0.02)
+    normals, anchors, kept = point_to_line.line_decisions(points, noise=0.02)
+    assert not segment_keep[on_side].any()
+    assert kept[on_side].sum() >= on_side.sum() - 2  # the ends' neighbourhoods take in the gap
+    assert np.array_equal(anchors[on_side], points[on_side])
+    assert np.all(np.abs(normals[on_side & kept, 0]) > np.cos(np.radians(5.0)))
+    # The wall's returns are as the segment fit left them.
+    assert np.array_equal(kept[~on_side], segment_keep[~on_side])
+    assert np.array_equal(normals[~on_side], segment_normals[~on_side])
