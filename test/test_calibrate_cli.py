@@ -100,3 +100,25 @@ def test_missing_bag_gives_clear_error(tmp_path, capsys):
     rc = main(["calibrate", str(tmp_path / "nope"), "--params", str(tmp_path / "p.yaml")])
     assert rc == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_wheels_left_unconfirmed_are_explained_by_the_matches_not_the_motion(tmp_path, capsys):
+    """Outdoors a 5 cm laser has few straight surfaces: most scan matches cannot be
+    confirmed, and the wheels, with too few matches to be compared with, keep their nominal
+    values. The explanation says so (the drive turns both ways: the motion is not to blame),
+    and no correction of theirs is reported as if they had been estimated."""
+    bag = tmp_path / "bag"
+    simulate(bag, duration=60.0, seed=2, scene="outdoor", range_noise=0.05)
+    out_json = tmp_path / "calibration.json"
+    rc = main(["calibrate", str(bag), "--params", str(bag / "params.yaml"), "--json",
+               str(out_json), "--quiet"])
+    assert rc == 0
+    result = json.loads(out_json.read_text())
+    unobserved = [k for k in CALIBRATION_KEYS[:3] if not result["observable"][k]]
+    assert unobserved
+    for key in unobserved:
+        assert result[key] == result["nominal"][key]
+    printed = capsys.readouterr().out
+    assert "scan matches could be confirmed" in printed and "lacks the motion" not in printed
+    correction = result.get("wheel_noise_correction") or {"shift_percent": {}}
+    assert not set(correction["shift_percent"]) & set(unobserved)

@@ -71,7 +71,7 @@ def format_table(result, truth=None) -> str:
         if truth:
             tru, _ = _human(key, truth[key])
             row += f"{tru:>12.3f}{est - tru:>+10.3f}{(est - tru) / sig:>+7.1f}"
-        flag = "" if result.observable[key] else "  NOT OBSERVABLE from this motion"
+        flag = "" if result.observable[key] else "  NOT OBSERVABLE"
         lines.append(row + f"  {unit}{flag}")
     return "\n".join(lines)
 
@@ -161,16 +161,27 @@ def _run_track(args, params, truth) -> int:
                             nominal=dict(zip(CALIBRATION_KEYS, map(float, calibrator.nominal))),
                             observable=estimate.observable)
     print(format_table(shown, truth))
-    _explain_unobserved(shown.observable)
+    _explain_unobserved(shown.observable, calibrator.frontend)
     print(f"track: {args.track}")
     return 0
 
 
-def _explain_unobserved(observable) -> None:
-    if not all(observable.values()):
-        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks the "
-              "motion that excites them (turns in both directions for the wheel base and the "
-              "laser offset).")
+def _explain_unobserved(observable, frontend=None) -> None:
+    """Why the flagged parameters kept their nominal value: too few scan matches confirmed
+    (the wheels have nothing to be compared with), else the motion."""
+    if all(observable.values()):
+        return
+    refined = frontend.refined_matcher if frontend is not None else None
+    unconfirmed = sum(refined.unrefined.values()) if refined is not None else 0
+    if refined is not None and 2 * unconfirmed > refined.matches:
+        print(f"Parameters marked NOT OBSERVABLE kept their nominal value: only "
+              f"{refined.matches - unconfirmed} of {refined.matches} scan matches could be "
+              "confirmed (few straight surfaces in view for this laser's range noise), too "
+              "few to compare the odometry with.")
+    else:
+        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks "
+              "the motion that excites them (turns in both directions for the wheel base and "
+              "the laser offset).")
 
 
 def _register(args, params, progress):
@@ -314,7 +325,7 @@ def _run(args, warnings) -> int:
         log.warning("the solver stopped with the parameters still moving by more than %.2g σ "
                     "per step: the estimate is not final", CONVERGED_STEP_SIGMA)
     print(format_table(result, truth))
-    _explain_unobserved(result.observable)
+    _explain_unobserved(result.observable, recording.frontend)
     _explain_dilution(result.wheel_noise_correction)
     if args.json:
         out = result.as_json()

@@ -136,12 +136,14 @@ def wheel_noise_correction(inputs, params, k, odometry_covariance, encoder_floor
     return WheelNoiseCorrection(k, slopes, odometry_variance, laser_variance)
 
 
-def summary(problem, values):
+def summary(problem, values, observable):
     """{"applied": bool, "shift_percent": {r_l, r_r, b}} of a solved problem's correction
-    (how far it moved k, or would have where it was not applied), or None without one."""
+    (how far it moved k, or would have where it was not applied), or None without one.
+    Parameters not `observable` ({key: bool}) kept their nominal value: no shift of theirs
+    is reported, and with none observable there is no summary."""
     found = [c for c in problem.corrections if isinstance(c, WheelNoiseCorrection)]
     if not found or found[0].shift is None:
         return None
     shift = 100.0 * found[0].shift / values["odometry"][0]
-    return {"applied": bool(found[0].active),
-            "shift_percent": dict(zip(CALIBRATION_KEYS[:3], map(float, shift)))}
+    shift_percent = {k: float(s) for k, s in zip(CALIBRATION_KEYS[:3], shift) if observable[k]}
+    return {"applied": bool(found[0].active), "shift_percent": shift_percent} if shift_percent else None

@@ -206,5 +206,5 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
         problem=problem,
         rejections=rejections or Rejections(),
         observability=observability,
-        wheel_noise_correction=dilution.summary(problem, values),
+        wheel_noise_correction=dilution.summary(problem, values, observability.as_dict()),
     )

@@ -97,7 +97,8 @@ def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=
         keyframes=inputs.size,
         variance_scales=dict(scales),
         converged=result.converged,
-        wheel_noise_correction=dilution.summary(problem, result.values),
+        wheel_noise_correction=dilution.summary(
+            problem, result.values, dict.fromkeys(CALIBRATION_KEYS[:3], not held)),
     )
 
 

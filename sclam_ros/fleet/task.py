@@ -20,7 +20,7 @@ def result_warnings(result) -> list[str]:
     warnings = []
     unobserved = [k for k in CALIBRATION_KEYS if not result.observable[k]]
     if unobserved:
-        warnings.append("not observable from this motion, kept nominal: " + ", ".join(unobserved))
+        warnings.append("not observable in this recording, kept nominal: " + ", ".join(unobserved))
     if not result.converged:
         warnings.append(f"solver stopped after {result.iterations} iterations without converging")
     if result.rejections.total():
