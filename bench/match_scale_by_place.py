@@ -34,12 +34,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir, table  # noqa: E402
-from sensor_matrix import ROWS, matches_against_truth  # noqa: E402
+from sensor_matrix import ROWS, along_motion, matches_against_truth  # noqa: E402
 
 from sclam_ros.sim.world import CORRIDORS  # noqa: E402
 
 ALONG = np.radians(20.0)  # motion within this of the corridor's direction
-SHORTEST = 0.02  # m
 
 
 def run_seed(job):
@@ -56,14 +55,9 @@ def run_seed(job):
     z, z_true, information, start = matches_against_truth(bag, truth, read_recording(bag, params).keyframes)
     shutil.rmtree(bag)  # 80 recordings would fill the scratch directory
     start = se2.compose(np.broadcast_to(np.array(truth["odom_origin_in_world"], float), start.shape), start)
-    length = np.hypot(z_true[:, 0], z_true[:, 1])
-    keep = length > SHORTEST
-    unit = z_true[keep, :2] / length[keep, None]
-    error = ((z[keep, :2] - z_true[keep, :2]) * unit).sum(1)
-    weight = np.einsum("mi,mij,mj->m", unit, information[keep, :2, :2], unit)
-    heading = start[keep, 2] + np.arctan2(unit[:, 1], unit[:, 0])  # of the motion, world
+    keep, error, length, weight = along_motion(z, z_true, information)
+    heading = start[keep, 2] + np.arctan2(z_true[keep, 1], z_true[keep, 0])  # of the motion, world
     corridor = along_a_corridor(CORRIDORS[row.get("scene", "office")], start[keep, :2], heading)
-    length = length[keep]
     return {place: (np.sum(weight[k] * error[k] * length[k]), np.sum(weight[k] * length[k] ** 2),
                     np.sum(error[k] * length[k]), np.sum(length[k] ** 2), int(k.sum()))
             for place, k in (("along a corridor", corridor), ("elsewhere", ~corridor),

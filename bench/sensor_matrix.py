@@ -13,6 +13,10 @@ drive) and calibrated as `sclam calibrate` does. Per row:
   - scale of the scan matches: Σ z·z_true / Σ |z_true|² over every laser edge of the graph
     (translation), z_true from the simulator's ground truth and the true mount: 1.0000 when
     matched displacements are neither short nor long (± its standard error over seeds);
+    weighted as the graph weighs the matches, 1 + Σ w·e·L / Σ w·L² (e each match's error
+    along its true motion, L the motion's length, w the match's information along it;
+    matches under 2 cm left out), the scale the wheel radii follow: a match whose walls do
+    not fix its motion along a corridor weighs little there;
     and their turn, Σ z_true × z / Σ |z_true|² in degrees (0 when matched translations
     point where the true ones do; a turn shows up as a laser yaw error);
   - calibration cost per second of recording (reading, matching, solving; one process per
@@ -102,19 +106,35 @@ FACTOR_ROWS = {
     },
 }
 RADII_AND_BASE = ("wheel_radius_left", "wheel_radius_right", "wheel_base")
+SHORTEST_MATCH = 0.02  # m: a shorter match's direction is not defined (along_motion)
 
 
 def match_bias(bag, truth, keyframes) -> tuple:
-    """Scale Σ z·z_true / Σ |z_true|² and turn Σ z_true × z / Σ |z_true|² (rad, positive:
-    matched translations turned counter-clockwise from the true ones) over every scan match
-    (before keyframes are merged: each match between the two scans' own stamps). A turn of
-    the matched translations is an error of the laser yaw, which the calibration takes from
-    the direction the laser moves in when the robot drives straight."""
-    z, z_true = matches_against_truth(bag, truth, keyframes)[:2]
+    """Scale Σ z·z_true / Σ |z_true|², turn Σ z_true × z / Σ |z_true|² (rad, positive:
+    matched translations turned counter-clockwise from the true ones) and weighted scale
+    (along_motion: as the graph weighs the matches) over every scan match (before keyframes
+    are merged: each match between the two scans' own stamps). A turn of the matched
+    translations is an error of the laser yaw, which the calibration takes from the
+    direction the laser moves in when the robot drives straight."""
+    z, z_true, information, _ = matches_against_truth(bag, truth, keyframes)
     norm = (z_true[:, :2] ** 2).sum()
     scale = (z[:, :2] * z_true[:, :2]).sum() / norm
     turn = (z_true[:, 0] * z[:, 1] - z_true[:, 1] * z[:, 0]).sum() / norm
-    return float(scale), float(turn)
+    _, error, length, weight = along_motion(z, z_true, information)
+    weighted = 1.0 + np.sum(weight * error * length) / np.sum(weight * length ** 2)
+    return float(scale), float(turn), float(weighted)
+
+
+def along_motion(z, z_true, information) -> tuple:
+    """(keep (M,) bool, e, L, w) of the matches longer than SHORTEST_MATCH: e the error along
+    the true motion, L its length, w the information along it (the graph's weight of the
+    match's error there). A calibration's wheel radii follow the scale 1 + Σ w·e·L / Σ w·L²."""
+    length = np.hypot(z_true[:, 0], z_true[:, 1])
+    keep = length > SHORTEST_MATCH
+    unit = z_true[keep, :2] / length[keep, None]
+    error = ((z[keep, :2] - z_true[keep, :2]) * unit).sum(1)
+    weight = np.einsum("mi,mij,mj->m", unit, information[keep, :2, :2], unit)
+    return keep, error, length[keep], weight
 
 
 def matches_against_truth(bag, truth, keyframes) -> tuple:
@@ -161,10 +181,11 @@ def run_one(job):
         return dict(name=name, seed=seed, failed=str(exc).splitlines()[0])
     cost = (time.perf_counter() - start) / duration
     error = {k: result.estimate[k] - truth[k] for k in CALIBRATION_KEYS}
-    scale, turn = match_bias(bag, truth, recording.keyframes)
+    scale, turn, weighted_scale = match_bias(bag, truth, recording.keyframes)
     err = np.array([error[k] for k in CALIBRATION_KEYS])
     return dict(
         name=name, seed=seed, failed=None, cost=cost, scale=scale, turn=turn,
+        weighted_scale=weighted_scale,
         error=error, z={k: error[k] / result.sigma[k] for k in CALIBRATION_KEYS},
         z_by_source={source: (err / sigma).tolist() for source, sigma in sigma_sources(result).items()},
         relative={k: 100.0 * error[k] / truth[k] for k in RADII_AND_BASE},
@@ -204,13 +225,14 @@ def row_cells(name, results):
     ok = [r for r in results if not r["failed"]]
     failed = len(results) - len(ok)
     if not ok:
-        return [name, f"0/{len(results)}"] + ["-"] * 9
+        return [name, f"0/{len(results)}"] + ["-"] * 10
     rel = np.array([[r["relative"][k] for k in RADII_AND_BASE] for r in ok])
     laser = np.array([[1e3 * r["error"]["laser_x"], 1e3 * r["error"]["laser_y"],
                        math.degrees(r["error"]["laser_yaw"])] for r in ok])
     z = np.array([[r["z"][k] for k in CALIBRATION_KEYS] for r in ok])
     rms_z = np.sqrt(np.mean(z ** 2, axis=0))
     scales = np.array([r["scale"] for r in ok])
+    weighted_scales = np.array([r["weighted_scale"] for r in ok])
     turns = np.degrees([r["turn"] for r in ok])
     return [
         name, f"{len(ok)}/{len(results)}",
@@ -222,6 +244,7 @@ def row_cells(name, results):
         + f" / {np.sqrt(np.mean(laser[:, 2] ** 2)):.3f}",
         " ".join(f"{v:.2f}" for v in rms_z),
         f"{scales.mean():.4f} ± {_standard_error(scales[:, None])[0]:.4f}",
+        f"{weighted_scales.mean():.4f} ± {_standard_error(weighted_scales[:, None])[0]:.4f}",
         f"{turns.mean():+.3f} ± {_standard_error(turns[:, None])[0]:.3f}",
         f"{1e3 * np.median([r['cost'] for r in ok]):.0f}",
     ]
@@ -291,6 +314,7 @@ def main():
                 ["laser / scene", "calibrated", "mean error r_l r_r b %", "its standard error %",
                  "RMS error r_l r_r b %", "mean laser error x y mm / yaw °",
                  "RMS laser x y mm / yaw °", "RMS err/σ r_l r_r b x y yaw", "match scale",
+                 "match scale, weighted",
                  "match turn °", "ms per s recorded"]))
     print("\nRMS err/σ r_l r_r b x y yaw with the σ of each covariance the reported one is made "
           "of (the reported: the chain-correlated, raised per parameter to the sandwich's)")
