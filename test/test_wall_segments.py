@@ -53,10 +53,9 @@ def test_scan_pieces_cut_at_range_jumps_and_join_across_the_seam():
     assert closed and len(one_surface) == 1
 
 
-def test_straight_segments_hold_one_wall_each():
-    """A laser inside a 6 m × 4 m room, 2 cm range noise: every segment holds returns of one
-    wall (but for the few at a corner that the split may give the other), and the segments
-    hold nearly all returns."""
+def test_straight_segments_split_a_room_at_its_corners_only():
+    """A laser inside a 6 m × 4 m room, 2 cm range noise: four segments, one per wall, each
+    holding only returns of its own wall, and together nearly all returns."""
     rng = np.random.default_rng(2)
     bearings = np.radians(np.arange(-180.0, 180.0, 0.5))
     c, s = np.cos(bearings), np.sin(bearings)
@@ -68,6 +67,9 @@ def test_straight_segments_hold_one_wall_each():
     points = np.column_stack([ranges * c, ranges * s])
     wall = np.where(on_x, np.sign(c), 2 * np.sign(s))  # ±1: x walls, ±2: y walls
     segments = wall_segments.straight_segments(points, 0.02)
+    assert len(segments) == 4
     assert sum(len(segment) for segment in segments) > 0.95 * len(points)
     for segment in segments:
+        # All of one wall but the few returns at its corners the split may give the other.
         assert np.mean(wall[segment] == np.median(wall[segment])) > 0.97
+        assert len(segment) > 60

@@ -11,12 +11,13 @@ average out over a recording (on the simulator's bare corridors a URG-04LX-like 
 matches in the lobbies came out 0.11 % long, its wheel radii and base 0.19–0.21 % large).
 
 Here each piece of the scan between breakpoints is split where it stops being straight
-(where two lines fit it best), and each straight segment's line is the least-squares fit of
-its returns' *ranges* (their bearings are exact: range noise is the only noise), which is
-the line the returns measure without the lean. A return's residual origin (anchor) is
-where its own beam meets that line: a point of the wall as the noise-free beam would have
-hit it, so neither which reference return a new point is paired with nor whether it lies
-clear of the range limit depends on that return's noise.
+(near the return farthest from the chord between its ends, where two lines fit it best),
+and each straight segment's line is the least-squares fit of its returns' *ranges* (their
+bearings are exact: range noise is the only noise), which is the line the returns measure
+without the lean. A return's residual origin (anchor) is where its own beam meets that
+line: a point of the wall as the noise-free beam would have hit it, so neither which
+reference return a new point is paired with nor whether it lies clear of the range limit
+depends on that return's noise.
 """
 from __future__ import annotations
 
@@ -33,10 +34,12 @@ BREAKPOINT_INCIDENCE = math.radians(10.0)
 BREAK_NOISE = 4.0
 # A segment is straight when its returns' RMS distance from its line is within
 # STRAIGHT_SPREAD and the farthest within SPLIT_DEVIATION times the range noise (the
-# largest of a few hundred Gaussian draws is about 3σ); otherwise it is split in two where
-# two lines fit it best.
+# largest of a few hundred Gaussian draws is about 3σ); otherwise it is split in two near
+# the return farthest from the chord between its ends, where two lines fit it best within
+# SPLIT_REACH (a fraction of its returns) of that return.
 STRAIGHT_SPREAD = 1.3
 SPLIT_DEVIATION = 4.0
+SPLIT_REACH = 0.1
 # Fewer returns or a shorter stretch of wall than this make no line: a few returns' fit is
 # turned by their noise (its error in direction is about σ·√(12/n)/L).
 MIN_SEGMENT_RETURNS = 10
@@ -127,35 +130,63 @@ def straight_segments(points, noise):
     """Index arrays (beam order) of the scan's straight segments of at least
     MIN_SEGMENT_RETURNS returns (see STRAIGHT_SPREAD)."""
     segments = []
-    pending, _ = scan_pieces(points, BREAK_NOISE * noise)
+    pending, closed = scan_pieces(points, BREAK_NOISE * noise)
     while pending:
         piece = pending.pop()
         if len(piece) < MIN_SEGMENT_RETURNS:
             continue
-        p = points[piece]
-        normal, centre, across, _ = _total_least_squares(p)
-        deviation = np.abs((p - centre) @ normal)
-        if across <= STRAIGHT_SPREAD * noise and deviation.max() <= SPLIT_DEVIATION * noise:
+        if _straight(points[piece], noise):
             segments.append(piece)
             continue
-        at = _best_split(p)
+        at = _split_point(points[piece])
         pending += [piece[:at], piece[at:]]
+    if closed and len(segments) > 1:
+        # One surface around the laser was cut at the scan's seam, which is no corner: the
+        # segments on either side of it are one wall where together they are straight.
+        last = next(i for i, segment in enumerate(segments) if segment[-1] == len(points) - 1)
+        first = next(i for i, segment in enumerate(segments) if segment[0] == 0)
+        joined = np.concatenate([segments[last], segments[first]])
+        if first != last and _straight(points[joined], noise):
+            segments = [seg for i, seg in enumerate(segments) if i not in (first, last)] + [joined]
     return segments
 
 
-def _best_split(p):
-    """k such that the lines fitted to p[:k] and p[k:] (a piece that is not straight, n ≥ 4
-    returns) leave the smallest sum of squared distances: where two walls meet, the corner
-    to within the noise. (The farthest return from the chord between the ends, the usual
-    split, lands a few returns off a corner often enough to give one wall's line to the
-    other's returns.) All splits at once, from prefix sums of the coordinates' moments."""
+def _straight(p, noise):
+    """Whether the returns p (n, 2) lie on one line within the range noise (STRAIGHT_SPREAD)."""
+    normal, centre, across, _ = _total_least_squares(p)
+    return (across <= STRAIGHT_SPREAD * noise
+            and np.abs((p - centre) @ normal).max() <= SPLIT_DEVIATION * noise)
+
+
+def _split_point(p):
+    """k where p (a piece that is not straight, n ≥ 10 returns) is split into p[:k] and
+    p[k:]: near the return farthest from the chord between its ends (each end the mean of
+    three returns, so that one return's noise does not turn the chord; on a piece whose
+    ends meet, farthest from them), which finds a corner among several, then
+    where, within SPLIT_REACH of it, the two sides' lines leave the smallest sum of squared
+    distances: at a corner, the corner to within the noise (the farthest return alone
+    lands a few returns off often enough to give one wall's line to the other's returns)."""
     n = len(p)
-    x, y = p[:, 0] - p[:, 0].mean(), p[:, 1] - p[:, 1].mean()  # for the sums' precision
-    moments = np.column_stack([np.ones(n), x, y, x * x, y * y, x * y])
-    before = np.cumsum(moments, axis=0)[:-1]  # row k − 1: the sums over p[:k], k = 1 … n − 1
+    first, last = p[:3].mean(axis=0), p[-3:].mean(axis=0)
+    chord = last - first
+    length = math.hypot(*chord)
+    if length > 0.1 * np.ptp(p, axis=0).max():
+        farthest = int(np.argmax(np.abs((p - first) @ (np.array([-chord[1], chord[0]]) / length))))
+    else:
+        farthest = int(np.argmax(np.hypot(*(p - 0.5 * (p[0] + p[-1])).T)))
+    # The lines are fitted within SPLIT_REACH of that return on either side alike, so that
+    # the scan read backwards (the same scene mirrored) is split alike and another corner
+    # farther along does not take part.
+    reach = max(3, int(SPLIT_REACH * n))
+    low = max(0, min(farthest - reach + 1, n - 2 * reach))  # 2·reach returns near an end
+    high = min(n, max(farthest + reach + 1, 2 * reach))
+    q = p[low:high] - p[low:high].mean(axis=0)  # centred for the sums' precision
+    moments = np.column_stack([np.ones(len(q)), q[:, 0], q[:, 1], q[:, 0] ** 2, q[:, 1] ** 2,
+                               q[:, 0] * q[:, 1]])
+    before = np.cumsum(moments, axis=0)[:-1]  # row k − 1: the sums over q[:k]
     after = before[-1] + moments[-1] - before
-    k = np.arange(2, n - 1)  # each side at least two returns
-    return int(k[np.argmin(_residual_sum(before[k - 1]) + _residual_sum(after[k - 1]))])
+    k = np.arange(2, len(q) - 1)  # each side at least two returns
+    return low + int(k[np.argmin(_residual_sum(before[k - 1]) + _residual_sum(after[k - 1]))])
 
 
 def _residual_sum(sums):
