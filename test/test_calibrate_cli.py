@@ -106,7 +106,8 @@ def test_wheels_left_unconfirmed_are_explained_by_the_matches_not_the_motion(tmp
     """Outdoors a 5 cm laser has few straight surfaces: most scan matches cannot be
     confirmed, and the wheels, with too few matches to be compared with, keep their nominal
     values. The explanation says so (the drive turns both ways: the motion is not to blame),
-    and no correction of theirs is reported as if they had been estimated."""
+    no correction of theirs is reported as if they had been estimated, and a warning says
+    that the σ of what was estimated may be too small."""
     bag = tmp_path / "bag"
     simulate(bag, duration=60.0, seed=2, scene="outdoor", range_noise=0.05)
     out_json = tmp_path / "calibration.json"
@@ -122,3 +123,5 @@ def test_wheels_left_unconfirmed_are_explained_by_the_matches_not_the_motion(tmp
     assert "scan matches could be confirmed" in printed and "lacks the motion" not in printed
     correction = result.get("wheel_noise_correction") or {"shift_percent": {}}
     assert not set(correction["shift_percent"]) & set(unobserved)
+    # What was estimated (the laser pose) carries a caution about its σ.
+    assert any("σ may be too small" in line for line in result["warnings"])
