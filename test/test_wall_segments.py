@@ -73,3 +73,39 @@ def test_straight_segments_split_a_room_at_its_corners_only():
         # All of one wall but the few returns at its corners the split may give the other.
         assert np.mean(wall[segment] == np.median(wall[segment])) > 0.97
         assert len(segment) > 60
+
+
+def _polygon_room_returns(corner_bearings, radius, bearings, noise, rng):
+    """Returns on beams at `bearings` inside a convex room whose corners lie on a circle of
+    `radius` around the laser at `corner_bearings` (rad, increasing)."""
+    corners = radius * np.column_stack([np.cos(corner_bearings), np.sin(corner_bearings)])
+    ranges = np.full(bearings.shape, np.inf)
+    beams = np.column_stack([np.cos(bearings), np.sin(bearings)])
+    for a, b in zip(corners, np.roll(corners, -1, axis=0)):
+        normal = np.array([b[1] - a[1], a[0] - b[0]])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            along = (a @ normal) / (beams @ normal)  # the beam meets the wall's line
+        hit = beams * along[:, None]
+        t = (hit - a) @ (b - a) / ((b - a) @ (b - a))
+        ranges = np.where((along > 0) & (t >= 0) & (t <= 1), np.minimum(ranges, along), ranges)
+    ranges = ranges + rng.normal(0.0, noise, bearings.shape)
+    return np.column_stack([ranges * np.cos(bearings), ranges * np.sin(bearings)])
+
+
+def test_a_wall_too_short_for_a_segment_at_a_closed_scans_seam_is_left_out():
+    """A closed scan whose first and last returns lie on a wall too short to be a segment
+    (4° wide across the seam): no segment holds the first return, nothing is joined across
+    the seam, and the long walls are one segment each."""
+    rng = np.random.default_rng(9)  # a draw that leaves the scan's first returns out
+    bearings = np.radians(np.arange(-180.0, 180.0, 0.5))
+    corner_bearings = np.radians([-178.0, -90.0, 0.0, 90.0, 178.0])
+    points = _polygon_room_returns(corner_bearings, 3.0, bearings, 0.02, rng)
+    assert wall_segments.scan_pieces(points, 0.08)[1]  # closed: no breakpoint
+    segments = wall_segments.straight_segments(points, 0.02)
+    assert len(segments) == 4 and not any(0 in segment for segment in segments)
+    on_short_wall = np.abs(bearings) > np.radians(178.0)
+    for segment in segments:
+        # At most the returns near a corner that the split may give the other wall (the
+        # short wall turns by 4° only).
+        assert on_short_wall[segment].sum() <= 4
+        assert len(segment) > 150

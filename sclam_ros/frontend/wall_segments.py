@@ -149,11 +149,14 @@ def straight_segments(points, noise):
     if closed and len(segments) > 1:
         # One surface around the laser was cut at the scan's seam, which is no corner: the
         # segments on either side of it are one wall where together they are straight.
-        last = next(i for i, segment in enumerate(segments) if segment[-1] == len(points) - 1)
-        first = next(i for i, segment in enumerate(segments) if segment[0] == 0)
-        joined = np.concatenate([segments[last], segments[first]])
-        if first != last and _straight(points[joined], noise):
-            segments = [seg for i, seg in enumerate(segments) if i not in (first, last)] + [joined]
+        # (Either side may have been too short to be a segment.)
+        last = next((i for i, seg in enumerate(segments) if seg[-1] == len(points) - 1), None)
+        first = next((i for i, seg in enumerate(segments) if seg[0] == 0), None)
+        if None not in (first, last) and first != last:
+            joined = np.concatenate([segments[last], segments[first]])
+            if _straight(points[joined], noise):
+                segments = [seg for i, seg in enumerate(segments)
+                            if i not in (first, last)] + [joined]
     return segments
 
 
