@@ -3,8 +3,9 @@
 A scan match is refined by measuring each new return's distance to the previous scan's
 wall lines (frontend/point_to_line.py). Each line passes through a residual origin: on a
 noisy laser, where the reference return's beam meets the line fitted to its straight
-segment (an "anchor", frontend/wall_segments.py), on any other laser the return itself.
-If those origins sit beyond or in
+segment (an "anchor", frontend/wall_segments.py), and the return itself off the segments
+(point_to_line.OFF_SEGMENTS); on any other laser the return itself. If those origins sit
+beyond or in
 front of the true walls, the matches come out long or short. Here the reference scans of
 the default drive (PowerBot, office, `--seeds` routes of `--duration` s, one scan every
 0.3 s, turns included) are ray cast with each laser's noise model, turned into reference
@@ -47,8 +48,9 @@ def _route_poses(world, duration, seed):
 
 
 def _offsets(job):
-    """(true range (n,), offset (n,) m, judged noise m, anchored: the origins are anchors, not
-    the returns) of every residual origin of one route's reference scans."""
+    """(true range (n,), offset (n,) m, judged noise m, anchored: the origins are anchors
+    where there are segments, not only returns) of every residual origin of one route's
+    reference scans."""
     seed, laser, duration = job
     from sclam_ros.core.inputs import Scan
     from sclam_ros.frontend import point_to_line
@@ -102,7 +104,7 @@ def main():
                 m = (true_range >= lo) & (true_range < hi)
                 cells.append(f"{1e3 * offset[m].mean():+.2f} ± {1e3 * offset[m].std() / np.sqrt(m.sum()):.2f}"
                              if m.sum() >= 50 else "–")
-            kinds = {"anchor (on its segment's line)" if r[3] else "own return" for r in runs}
+            kinds = {"segment anchor, own return off segments" if r[3] else "own return" for r in runs}
             origin = " or ".join(sorted(kinds))  # per route, as each judges the noise
             rows.append([label, f"{1e3 * noise:.0f}", origin, *cells])
     print(f"{args.seeds} routes × {args.duration:.0f} s, a reference scan every {PERIOD} s; offset of the "
