@@ -5,15 +5,14 @@ wall lines (frontend/point_to_line.py). Each line passes through a residual orig
 noisy laser, where the reference return's beam meets the line fitted to its straight
 segment (an "anchor", frontend/wall_segments.py), and the return itself off the segments
 (point_to_line.OFF_SEGMENTS); on any other laser the return itself. If those origins sit
-beyond or in
-front of the true walls, the matches come out long or short. Here the reference scans of
-the default drive (PowerBot, office, `--seeds` routes of `--duration` s, one scan every
-0.3 s, turns included) are ray cast with each laser's noise model, turned into reference
-scans as a recording's matcher does (range noise judged on the first 30 scans, the wall
-fit and range-limit clearance that follow from it), and every origin the refinement
-would use is compared with the true wall along the line's normal (+: beyond the wall,
-away from the laser). Per laser (its kind of origin) and per true range of the return:
-mean offset in mm ± its standard error over all origins.
+beyond or in front of the true walls, the matches come out long or short. Here the
+reference scans of the default drive (PowerBot, office, `--seeds` routes of `--duration`
+s, one scan every 0.3 s, turns included) are ray cast with each laser's noise model,
+turned into reference scans as a recording's matcher does (range noise judged on the first
+30 scans, the wall fit and range-limit clearance that follow from it), and every origin
+the refinement would use is compared with the true wall along the line's normal (+: beyond
+the wall, away from the laser). Per laser (its kind of origin) and per true range of the
+return: mean offset in mm ± its standard error over all origins.
 
 Run: .venv/bin/python bench/reference_bias.py [--seeds 4] [--duration 60] [--jobs 2]
 """
