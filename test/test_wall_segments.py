@@ -3,6 +3,7 @@ import math
 import numpy as np
 
 from sclam_ros.frontend import wall_segments
+from sclam_ros.sim.world import World, _polyline
 
 
 def _wall_returns(bearings, normal_angle, distance, noise, rng):
@@ -78,16 +79,9 @@ def test_straight_segments_split_a_room_at_its_corners_only():
 def _polygon_room_returns(corner_bearings, radius, bearings, noise, rng):
     """Returns on beams at `bearings` inside a convex room whose corners lie on a circle of
     `radius` around the laser at `corner_bearings` (rad, increasing)."""
-    corners = radius * np.column_stack([np.cos(corner_bearings), np.sin(corner_bearings)])
-    ranges = np.full(bearings.shape, np.inf)
-    beams = np.column_stack([np.cos(bearings), np.sin(bearings)])
-    for a, b in zip(corners, np.roll(corners, -1, axis=0)):
-        normal = np.array([b[1] - a[1], a[0] - b[0]])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            along = (a @ normal) / (beams @ normal)  # the beam meets the wall's line
-        hit = beams * along[:, None]
-        t = (hit - a) @ (b - a) / ((b - a) @ (b - a))
-        ranges = np.where((along > 0) & (t >= 0) & (t <= 1), np.minimum(ranges, along), ranges)
+    corners = [(radius * math.cos(a), radius * math.sin(a)) for a in corner_bearings]
+    room = World(np.array(_polyline(*corners, corners[0]), float))
+    ranges = room.raycast((0.0, 0.0, 0.0), bearings, 2.0 * radius)
     ranges = ranges + rng.normal(0.0, noise, bearings.shape)
     return np.column_stack([ranges * np.cos(bearings), ranges * np.sin(bearings)])
 

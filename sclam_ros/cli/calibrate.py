@@ -172,10 +172,9 @@ def _explain_unobserved(observable, frontend=None) -> None:
     if all(observable.values()):
         return
     refined = frontend.refined_matcher if frontend is not None else None
-    unconfirmed = sum(refined.unrefined.values()) if refined is not None else 0
-    if refined is not None and 2 * unconfirmed > refined.matches:
+    if refined is not None and refined.mostly_unconfirmed:
         print(f"Parameters marked NOT OBSERVABLE kept their nominal value: only "
-              f"{refined.matches - unconfirmed} of {refined.matches} scan matches could be "
+              f"{refined.confirmed} of {refined.matches} scan matches could be "
               "confirmed (few straight surfaces in view for this laser's range noise), too "
               "few to compare the odometry with.")
     else:
@@ -250,7 +249,7 @@ def _warn_about_input(rejections, frontend) -> None:
                     "confirm them (%s; few straight walls in view: an outdoor scene?)",
                     sum(unrefined.values()), frontend.refined_matcher.matches,
                     ", ".join(f"{UNREFINED_REASONS[r]}: {n}" for r, n in sorted(unrefined.items())))
-    if refined is not None and refined.fits_segments and 2 * sum(unrefined.values()) > refined.matches:
+    if refined is not None and refined.fits_segments and refined.mostly_unconfirmed:
         # Measured on the simulator's outdoor scene (bench/sensor_matrix.py --factors outdoor).
         log.warning("with a noisy laser and most scan matches unconfirmed the reported σ may "
                     "be too small: outdoors on the simulator the errors were up to 1.5 σ RMS for "

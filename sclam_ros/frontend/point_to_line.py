@@ -340,6 +340,16 @@ class RefinedScanMatcher:
         self.unrefined: Counter = Counter()
         self.matches = 0  # matches KISS-ICP gave, used or not
 
+    @property
+    def confirmed(self) -> int:
+        """Matches the refinement confirmed (used)."""
+        return self.matches - sum(self.unrefined.values())
+
+    @property
+    def mostly_unconfirmed(self) -> bool:
+        """More than half of the matches could not be confirmed (few straight surfaces)."""
+        return 2 * self.confirmed < self.matches
+
     def add_scan(self, scan, guess, points):
         """(Match or None, z or None, information of z or None): the matcher's answer and
         its refined motion; z is None when there is no match or the refinement could not
