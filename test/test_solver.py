@@ -126,6 +126,20 @@ def test_redundancy_is_exact_where_the_scan_matches_barely_see_along_the_street(
         assert redundancy[name][0] == pytest.approx(exact, rel=1e-3), name
 
 
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_a_group_whose_redundancy_collapses_keeps_its_one_step_scale(seed):
+    """The street above with the odometry's noise stated twice its true size (true scale
+    0.25): as its scale falls, the odometry pins the poses ever closer and its redundancy
+    collapses (24 % of its size to 2-4 %), and the iteration would run its scale to
+    0.09-0.17, claiming the odometry twice as precise as it is. It keeps its one-step
+    estimate, on the safe side of the truth."""
+    g = make_graph(n=300, seed=seed, laser_sigma=(0.4, 0.01, 0.002))
+    g["wheel_noise"] = 2 * g["wheel_noise"]
+    problem = build_problem(g)
+    _, scales = solve_with_variance_components(problem)
+    assert 0.25 <= scales["odometry"] < 1.0
+
+
 @pytest.mark.parametrize("path", ["banded", "sparse LU", "dense"])
 def test_inverse_at_gives_the_inverse_on_the_pattern(path):
     """LinearSolver.inverse_at against the dense inverse, on each of its paths: a chain of
