@@ -252,7 +252,7 @@ def _warn_about_input(rejections, frontend) -> None:
     if refined is not None and refined.fits_segments and refined.mostly_unconfirmed:
         # Measured on the simulator's outdoor scene (bench/sensor_matrix.py --factors outdoor).
         log.warning("with a noisy laser and most scan matches unconfirmed the reported σ may "
-                    "be too small: outdoors on the simulator the errors were up to 1.5 σ RMS for "
+                    "be too small: outdoors on the simulator the errors were up to 1.6 σ RMS for "
                     "the wheels and 2.3 σ for the laser yaw (docs/accuracy.md)")
 
 
