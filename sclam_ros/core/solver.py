@@ -631,7 +631,7 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
     result = levenberg_marquardt(problem, progress=progress, **lm_options)
     first_round = None  # the scales after one round (the one-step estimate)
     first_redundancy = None  # the redundancies that round measured them with
-    rounds_used_up = True
+    rounds_used_up = False
     for _ in range(rounds):
         ratios, redundancy = _variance_ratios(problem, result.values)
         for name, ratio in ratios.items():
@@ -643,11 +643,11 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
             first_round = {name: problem.scales[name] for name in ratios}
             first_redundancy = redundancy
         if all(abs(ratio - 1.0) <= tolerance for ratio in ratios.values()):
-            rounds_used_up = False
             break
         problem.values = result.values
         result = levenberg_marquardt(problem, progress=progress, **lm_options)
     else:
+        rounds_used_up = True
         ratios, redundancy = _variance_ratios(problem, result.values)
     # A group still far from its fixed point when the rounds are used up is running away,
     # not settling. With an odometry model that misfits (1 Hz encoders), the scan matches'

@@ -143,8 +143,8 @@ SMALL_OBJECT_NOISE = 0.005  # m
 # seeds) the corridors' URG-04LX-like radii and base +0.034 / +0.048 / +0.043 → +0.009 /
 # +0.021 / +0.012 %, the office's low-cost +0.067 / +0.039 / +0.015 → +0.075 / +0.048 /
 # +0.020 %, the other rows within 0.005 %. With the segments split as wall_segments now
-# splits them, the same outdoor rows' RMS err/σ are 1.49 / 1.48 / 1.21 at 2 cm and 0.98 /
-# 0.93 / 0.99 at 60 m, the laser yaw's 1.85 and 2.29 (docs/accuracy.md).
+# splits them, the same outdoor rows' RMS err/σ are 1.55 / 1.53 / 1.31 at 2 cm and 1.17 /
+# 1.08 / 1.13 at 60 m, the laser yaw's 1.84 and 2.30 (docs/accuracy.md).
 
 
 @dataclass
