@@ -100,3 +100,26 @@ def test_a_suspected_radius_change_is_a_warning(tracked):
     level, message, values = diagnostic_status(suspected, params, RECEIVED, Rejections())
     assert level == WARN and "wheel radii may have changed" in message
     assert float(values["radius_change_weight"]) > 0.85
+
+
+def test_a_noisy_laser_with_most_matches_unconfirmed_warns_that_its_sigma_may_be_small(tmp_path):
+    """Outdoors a 5 cm laser has few straight surfaces: most of its scan matches cannot be
+    confirmed, and where that happened on the simulator the σ was too small (up to 1.6 σ
+    RMS). The live status warns as `sclam calibrate` does, with the counts to check."""
+    bag = tmp_path / "bag"
+    simulate(bag, duration=60.0, seed=2, scene="outdoor", range_noise=0.05)
+    params = SclamParams.from_yaml(bag / "params.yaml")
+    calibrator = OnlineCalibrator(params)
+    for _ in iter_outputs(bag, params, calibrator):
+        pass
+    status = calibrator.status()
+    level, message, values = diagnostic_status(status, params, RECEIVED, Rejections())
+    assert 2 * values["scan_matches_confirmed"] < values["scan_matches"], values
+    assert level == WARN and "σ may be too small" in message, message
+
+
+def test_matches_mostly_confirmed_give_no_sigma_warning(tracked):
+    params, calibrator, _ = tracked
+    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
+    assert 2 * values["scan_matches_confirmed"] > values["scan_matches"] > 0, values
+    assert "σ may be too small" not in message

@@ -249,8 +249,7 @@ def _warn_about_input(rejections, frontend) -> None:
                     "confirm them (%s; few straight walls in view: an outdoor scene?)",
                     sum(unrefined.values()), frontend.refined_matcher.matches,
                     ", ".join(f"{UNREFINED_REASONS[r]}: {n}" for r, n in sorted(unrefined.items())))
-    if refined is not None and refined.fits_segments and refined.mostly_unconfirmed:
-        # Measured on the simulator's outdoor scene (bench/sensor_matrix.py --factors outdoor).
+    if refined is not None and refined.sigma_may_be_small:
         log.warning("with a noisy laser and most scan matches unconfirmed the reported σ may "
                     "be too small: outdoors on the simulator the errors were up to 1.6 σ RMS for "
                     "the wheels and 2.3 σ for the laser yaw (docs/accuracy.md)")

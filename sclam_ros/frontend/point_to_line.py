@@ -350,6 +350,13 @@ class RefinedScanMatcher:
         """More than half of the matches could not be confirmed (few straight surfaces)."""
         return 2 * self.confirmed < self.matches
 
+    @property
+    def sigma_may_be_small(self) -> bool:
+        """A noisy laser with most matches unconfirmed: on the simulator's outdoor scene
+        the errors were then up to 1.6 σ RMS for the wheels and 2.3 σ for the laser yaw
+        (bench/sensor_matrix.py --factors outdoor; docs/accuracy.md)."""
+        return self.fits_segments and self.mostly_unconfirmed
+
     def add_scan(self, scan, guess, points):
         """(Match or None, z or None, information of z or None): the matcher's answer and
         its refined motion; z is None when there is no match or the refinement could not

@@ -50,6 +50,8 @@ def diagnostic_status(status, params, received, rejections):
         "scans_received": received["scan"],
         "scans_skipped_above_max_rate": cal.skipped_scans,
         "solves_unconverged_in_a_row": cal.unconverged_in_a_row,
+        "scan_matches": cal.scan_matches,
+        "scan_matches_confirmed": cal.scan_matches_confirmed,
         "rejected_total": rejections.total(),
     }
     weight = math.nan  # the change model's weight in the published radii σ
@@ -82,6 +84,10 @@ def diagnostic_status(status, params, received, rejections):
             message = f"{cal.unconverged_in_a_row} solves in a row did not converge"
         else:
             level, message = OK, "calibrated"
+        if cal.sigma_may_be_small:
+            level = WARN
+            message += ("; the σ may be too small: a noisy laser with most scan matches "
+                        "unconfirmed (few straight surfaces in view; docs/accuracy.md)")
     for reason, n in sorted(rejections.counts.items()):
         values[f"rejected_{reason}"] = n
     return level, message, values

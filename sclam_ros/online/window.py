@@ -130,6 +130,9 @@ class CalibratorStatus:
     solves: int
     skipped_scans: int
     unconverged_in_a_row: int
+    scan_matches: int  # KISS-ICP's, used or not
+    scan_matches_confirmed: int  # by the point-to-line refinement (used)
+    sigma_may_be_small: bool  # point_to_line.RefinedScanMatcher.sigma_may_be_small
 
 
 class OnlineCalibrator:
@@ -247,7 +250,7 @@ class OnlineCalibrator:
         return self.pose_window_length() + self.history_length()
 
     def status(self) -> CalibratorStatus:
-        estimate = self.estimate
+        estimate, refined = self.estimate, self.frontend.refined_matcher
         return CalibratorStatus(
             estimate=estimate,
             calibration=self.nominal.copy() if estimate is None else estimate.vector(),
@@ -260,6 +263,8 @@ class OnlineCalibrator:
             radius_changes=self.radius_changes, change_statistic=self.change_statistic,
             solves=self.solves, skipped_scans=self.frontend.skipped_scans,
             unconverged_in_a_row=self.unconverged_in_a_row,
+            scan_matches=refined.matches, scan_matches_confirmed=refined.confirmed,
+            sigma_may_be_small=refined.sigma_may_be_small,
         )
 
     def _trim(self) -> None:

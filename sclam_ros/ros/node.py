@@ -36,7 +36,9 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
                          observability of each parameter (core/observability.py: an
                          unobserved one is at nominal, ``<name>_observable`` false), rejected
                          input by reason, last solve converged (WARN after 3 unconverged in a
-                         row). A value not known yet (no estimate, no change test) is absent: never "nan".
+                         row), scan matches confirmed of those made (WARN that the σ may be
+                         too small where a noisy laser has most unconfirmed, as outdoors).
+                         A value not known yet (no estimate, no change test) is absent: never "nan".
   ``~/laser_pose`` and ``~/wheel_parameters`` are transient-local: a late subscriber gets the last one.
 Services (std_srvs/Trigger)
   ``~/reset_window``       forget the window's keyframes (radii restart from their current value)
