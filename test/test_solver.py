@@ -7,7 +7,9 @@ from sclam_ros.core import factors, kinematics
 from sclam_ros.core.graph import GraphInputs, initial_poses
 from sclam_ros.core.solver import (
     CauchyKernel,
+    Influence,
     chain_correlated_covariance,
+    component_scales,
     LinearSolver,
     Problem,
     Values,
@@ -300,3 +302,18 @@ def test_residual_rms_from_the_solvers_system_is_the_rms_of_the_residuals():
         np.testing.assert_allclose(rms[factor.name], direct, rtol=1e-12)
     np.testing.assert_allclose(rms["laser"], residual_rms(problem, result.values)["laser"],
                                rtol=1e-12)
+
+
+def test_odometry_scales_per_component_are_one_where_the_stated_shape_is_right():
+    """Drawn from the stated model itself: every component's scale is near 1 (or kept at 1
+    where the laser absorbs it), and the covariance is H⁻¹'s within a few per cent."""
+    g = make_graph(n=400, seed=12)
+    problem = build_problem(g)
+    result, _ = solve_with_variance_components(problem)
+    influence = Influence.of(problem, result.values, ["odometry", "laser"])
+    (_, start, stop), = [r for r in influence.system.row_ranges if r[0] == "odometry"]
+    np.testing.assert_allclose(component_scales(influence, start, stop, 3), 1.0, atol=0.25)
+    each, _ = chain_correlated_covariance(problem, result.values, ["odometry", "laser"], influence=influence)
+    one, _ = chain_correlated_covariance(problem, result.values, ["odometry", "laser"],
+                                         influence=influence, per_component=False)
+    np.testing.assert_allclose(np.sqrt(np.diag(each)), np.sqrt(np.diag(one)), rtol=0.1)

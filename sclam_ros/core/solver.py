@@ -738,6 +738,7 @@ class Influence:
     system: System
     marginal: np.ndarray
     rows: np.ndarray
+    lu: "LinearSolver"
 
     @classmethod
     def of(cls, problem: Problem, values: Values, blocks, lu=None) -> "Influence":
@@ -747,7 +748,32 @@ class Influence:
             lu = LinearSolver(hessian, problem.banded_size)
         cols, solved = _inverse_columns(problem, blocks, lu)
         marginal = solved[cols]
-        return cls(system, 0.5 * (marginal + marginal.T), system.jacobian @ solved)
+        return cls(system, 0.5 * (marginal + marginal.T), system.jacobian @ solved, lu)
+
+
+def component_scales(influence: Influence, start: int, stop: int, d: int) -> np.ndarray:
+    """Noise scale per component (d,) of a factor's whitened rows start:stop: each
+    component's squared residuals over its redundancy, n − tr(J_c H⁻¹ J_cᵀ), where that is
+    at least MIN_REDUNDANCY_SHARE of its n rows; else 1.
+
+    Variance components give a factor one scale; the shape of its covariance is the stated
+    model's. The odometry's sideways part has its own parameter (lateral_noise), and the
+    simulator's robots slip sideways less than the default states: at the truth their
+    whitened sideways errors have a mean square of about a third of the factor's scale,
+    the others' about 1 (bench/error_structure.py). The model's σ then overstates what
+    rests on the sideways part: the laser yaw, taken from the direction the laser moves
+    in while the odometry says the robot moves straight ahead. A component the other
+    edges absorb (too little redundancy of its own) keeps the factor's scale."""
+    jacobian = influence.system.jacobian[start:stop]
+    residual = influence.system.residual[start:stop].reshape(-1, d)
+    scales = np.ones(d)
+    for c in range(d):
+        rows = jacobian[c::d]
+        n = rows.shape[0]
+        redundancy = n - absorbed_trace(rows, influence.lu)
+        if redundancy >= MIN_REDUNDANCY_SHARE * n and redundancy > 0:
+            scales[c] = float(np.sum(residual[:, c] ** 2)) / redundancy
+    return scales
 
 
 def chained_edges(factor):
@@ -767,7 +793,7 @@ def lag1_correlation(whitened, t, u) -> np.ndarray:
 
 
 def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=None,
-                                influence: Optional[Influence] = None):
+                                influence: Optional[Influence] = None, per_component=True):
     """H⁻¹ (Jᵀ C J) H⁻¹ of the named blocks, with C the errors' covariance when consecutive
     edges of a factor with `chained_errors` are correlated; and those correlations.
 
@@ -783,7 +809,12 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
     −0.20 against −0.10 to −0.25 on the noisy ones, so the correction errs toward H⁻¹.
     Only cancellation is taken from it (ρ clipped to [−0.5, 0]: −0.5 is a scan's error
     alone, and C stays positive semidefinite); a positive correlation is the sandwich's to
-    report. `influence`: Influence.of(problem, values, blocks, lu) if already at hand.
+    report. The other measurement edges (the odometry) enter with their noise scale per
+    component (component_scales) where `per_component`: in the sandwich H⁻¹ Jᵀ C J H⁻¹
+    their block of C is diag(scales), so that a part of the stated model too large for
+    these data (the sideways slip) does not widen the σ of what rests on it, while the
+    estimate keeps the variance components' weights. `influence`: Influence.of(problem,
+    values, blocks, lu) if already at hand.
     """
     influence = influence or Influence.of(problem, values, blocks, lu)
     system, cov = influence.system, influence.marginal
@@ -793,9 +824,14 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
         if len(factor) == 0:
             continue
         name, start, stop = next(factor_rows)
+        d = factor.edge_dim
+        if per_component and factor.measurement and not getattr(factor, "chained_errors", False):
+            scales = component_scales(influence, start, stop, d)
+            rows = influence.rows[start:stop].reshape(-1, d, influence.rows.shape[1])
+            cov = cov + np.einsum("tip,i,tiq->pq", rows, scales - 1.0, rows)
+            continue
         if not getattr(factor, "chained_errors", False):
             continue
-        d = factor.edge_dim
         t, u = chained_edges(factor)
         rho = np.clip(lag1_correlation(system.residual[start:stop].reshape(-1, d), t, u), -0.5, 0.0)
         correlations[name] = rho
