@@ -10,12 +10,13 @@ and divided by that scale, per component (x, y, θ of the edge):
   - mean square: 1 where the stated shape is right; a component below 1 is noisier in the
     model than in the data (its σ overstates what rests on it);
   - lag-1 correlation between consecutive edges (the scan matches share a scan);
-  - RMS err/σ per parameter of the chain-correlated covariance as the calibration computes
-    it, and of the same with what only the simulator knows put in its place: the
-    odometry's variance per component at the truth's mean square; and also the scan
-    matches' lag-1 correlation and variance per component at the truth's. Where these
-    move RMS err/σ toward 1, the stated shape is what makes the σ conservative, not the
-    estimate of one scale or one correlation.
+  - RMS err/σ per parameter of the chain-correlated covariance with one noise scale per
+    edge type, with the odometry's scale per component from the residuals (as the
+    calibration computes it, solver.component_scales), and with what only the simulator
+    knows put in their place: the odometry's variance per component at the truth's mean
+    square, then also the scan matches' variance and lag-1 correlation per component.
+    Where these move RMS err/σ toward 1, the stated shape is what makes the σ
+    conservative, not the estimate of one scale or one correlation.
 
 Run: .venv/bin/python bench/error_structure.py [--rows 0 9] [--seeds 12] [--duration 120]
 """
@@ -78,6 +79,8 @@ def run_one(job):
     error = np.array([result.estimate[k] - truth[k] for k in CALIBRATION_KEYS])
     problem, blocks = result.problem, ["odometry", "laser"]
     influence = solver.Influence.of(problem, problem.values, blocks)
+    one_scale, _ = solver.chain_correlated_covariance(problem, problem.values, blocks,
+                                                       influence=influence, per_component=False)
     chain, _ = solver.chain_correlated_covariance(problem, problem.values, blocks, influence=influence)
     # H⁻¹ Jᵀ C J H⁻¹ with C's blocks changed from the model's (identity, and the residuals'
     # ρ between chained matches) to the truth's: rows are J H⁻¹ E per whitened row.
@@ -93,9 +96,11 @@ def run_one(job):
     las = rows["laser"]
     laser = (np.einsum("tip,i,tiq->pq", las, out["laser square"] - 1.0, las)
              + _chained(las, t, u, out["laser square"] * true_rho) - _chained(las, t, u, residual_rho))
-    out["z chain-correlated"] = error / np.sqrt(np.diag(chain))
-    out["z odometry at the truth's variance per component"] = error / np.sqrt(np.diag(chain + odometry))
-    out["z and the matches' at the truth's"] = error / np.sqrt(np.diag(chain + odometry + laser))
+    out["z chain-correlated, one noise scale per edge type"] = error / np.sqrt(np.diag(one_scale))
+    out["z the same, the odometry's per component (as calibrated)"] = error / np.sqrt(np.diag(chain))
+    out["z the odometry's at the truth's per component"] = error / np.sqrt(np.diag(one_scale + odometry))
+    out["z and the matches' variance and correlation at the truth's"] = error / np.sqrt(
+        np.diag(one_scale + odometry + laser))
     out["z reported"] = error / np.array([result.sigma[k] for k in CALIBRATION_KEYS])
     return out
 
