@@ -252,7 +252,7 @@ def _warn_about_input(rejections, frontend) -> None:
     if refined is not None and refined.sigma_may_be_small:
         log.warning("with a noisy laser and most scan matches unconfirmed the reported σ may "
                     "be too small: outdoors on the simulator the errors were up to 1.6 σ RMS for "
-                    "the wheels and 2.3 σ for the laser yaw (docs/accuracy.md)")
+                    "the wheels and 2.4 σ for the laser yaw (docs/accuracy.md)")
 
 
 UNREFINED_REASONS = {

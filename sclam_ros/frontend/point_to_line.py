@@ -144,7 +144,7 @@ SMALL_OBJECT_NOISE = 0.005  # m
 # +0.021 / +0.012 %, the office's low-cost +0.067 / +0.039 / +0.015 → +0.075 / +0.048 /
 # +0.020 %, the other rows within 0.005 %. With the segments split as wall_segments now
 # splits them, the same outdoor rows' RMS err/σ are 1.55 / 1.53 / 1.31 at 2 cm and 1.17 /
-# 1.08 / 1.13 at 60 m, the laser yaw's 1.84 and 2.30 (docs/accuracy.md).
+# 1.08 / 1.12 at 60 m, the laser yaw's 1.84 and 2.35 (docs/accuracy.md).
 
 
 @dataclass
@@ -353,7 +353,7 @@ class RefinedScanMatcher:
     @property
     def sigma_may_be_small(self) -> bool:
         """A noisy laser with most matches unconfirmed: on the simulator's outdoor scene
-        the errors were then up to 1.6 σ RMS for the wheels and 2.3 σ for the laser yaw
+        the errors were then up to 1.6 σ RMS for the wheels and 2.4 σ for the laser yaw
         (bench/sensor_matrix.py --factors outdoor; docs/accuracy.md)."""
         return self.fits_segments and self.mostly_unconfirmed
 
