@@ -79,8 +79,8 @@ def run_one(job):
     error = np.array([result.estimate[k] - truth[k] for k in CALIBRATION_KEYS])
     problem, blocks = result.problem, ["odometry", "laser"]
     influence = solver.Influence.of(problem, problem.values, blocks)
-    one_scale, _ = solver.chain_correlated_covariance(problem, problem.values, blocks,
-                                                       influence=influence, per_component=False)
+    one_scale, residual_rho = solver.chain_correlated_covariance(
+        problem, problem.values, blocks, influence=influence, per_component=False)
     chain, _ = solver.chain_correlated_covariance(problem, problem.values, blocks, influence=influence)
     # H⁻¹ Jᵀ C J H⁻¹ with C's blocks changed from the model's (identity, and the residuals'
     # ρ between chained matches) to the truth's: rows are J H⁻¹ E per whitened row.
@@ -89,13 +89,10 @@ def run_one(job):
     odometry = np.einsum("tip,i,tiq->pq", rows["odometry"], out["odometry square"] - 1.0, rows["odometry"])
     laser_factor = next(f for f in problem.factors if f.name == "laser")
     t, u = solver.chained_edges(laser_factor)
-    residual_rho = np.clip(solver.lag1_correlation(
-        next(influence.system.residual[a:b] for n, a, b in influence.system.row_ranges
-             if n == "laser").reshape(-1, 3), t, u), -0.5, 0.0)
     true_rho = np.clip(out["laser lag-1"], -0.5, 0.0)
     las = rows["laser"]
     laser = (np.einsum("tip,i,tiq->pq", las, out["laser square"] - 1.0, las)
-             + _chained(las, t, u, out["laser square"] * true_rho) - _chained(las, t, u, residual_rho))
+             + _chained(las, t, u, out["laser square"] * true_rho) - _chained(las, t, u, residual_rho["laser"]))
     out["z chain-correlated, one noise scale per edge type"] = error / np.sqrt(np.diag(one_scale))
     out["z the same, the odometry's per component (as calibrated)"] = error / np.sqrt(np.diag(chain))
     out["z the odometry's at the truth's per component"] = error / np.sqrt(np.diag(one_scale + odometry))
