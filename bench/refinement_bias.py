@@ -29,6 +29,8 @@ office corridor instead of the route's (the laser on the corridor's centre line 
 along it), with the 6-beam line fit a 1 cm laser gets in the last. Rows 22-23: the
 URG-04LX-like laser on routes through the corridors scene (bare corridors between lobbies),
 as recorded and on noise-free returns with the noisy laser's lines (their geometry alone).
+Rows 24-25: the low-cost laser's returns weighed alike, not by the range noise that grows
+with range (point_to_line.GROWTH), on the route's pairs and along the corridor.
 
 Run: .venv/bin/python bench/refinement_bias.py [--pairs 600] [--draws 20] [--step 0.15] [--jobs 2]
      [--rows N ...]
@@ -87,6 +89,12 @@ ROWS = [
     ("URG-04LX-like, corridors scene", URG, (1.0, 1.0), {"scene": "corridors"}),
     ("  without noise, its lines fitted as for 3 cm (their geometry alone)", URG, (0.0, 0.0),
      {"scene": "corridors", "fit": "noisy"}),
+    # The low-cost laser's returns weighed alike instead of by their range noise, which
+    # grows with range (point_to_line.GROWTH): on the route's pairs and along the corridor.
+    ("low-cost, returns weighed alike (not by their range noise)", LOW_COST, (1.0, 1.0),
+     {"alike": True}),
+    ("low-cost along the corridor, returns weighed alike", LOW_COST, (1.0, 1.0),
+     {"pairs": "corridor", "alike": True}),
 ]
 
 
@@ -148,11 +156,15 @@ def _measure_row(job):
         laser_poses = se2.compose(route.pose_at(rng.uniform(0.0, route.duration - 1.0, pairs)), MOUNT)
     # The wall-line fit the recording would choose: the laser's own noise, judged as
     # RefinedScanMatcher does (median over 30 scans), whichever scan carries noise here.
-    judged = [point_to_line.range_noise(_scan(model.measure(world.raycast(p, angles, model.range_max)[None],
-                                                                    rng)[0], model))
-              for p in laser_poses[:30]]
-    noise = float(np.median([n for n in judged if n is not None]))
+    judging = [_scan(model.measure(world.raycast(p, angles, model.range_max)[None], rng)[0], model)
+               for p in laser_poses[:30]]
+    noise = float(np.median([n for n in map(point_to_line.range_noise, judging) if n is not None]))
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
+    # How the noise grows with range, judged as RefinedScanMatcher does (GROWTH).
+    growth = 0.0
+    if fit_noise is not None and not options.get("alike"):
+        growth = point_to_line.judged_growth([point_to_line.range_errors(scan, noise)
+                                              for scan in judging])
     if options.get("fit") == "narrow":
         fit_noise = None
     elif options.get("fit") == "noisy":  # noise-free returns, the laser model's noise's lines
@@ -173,12 +185,13 @@ def _measure_row(job):
                 ranges[ranges > model.range_max - clear_of_limit * noise] = np.inf
             earlier_scan = _scan(ranges[0], model)
             if options.get("origins") == "returns":
-                reference = _from_returns(earlier_scan, fit_noise, usable_range)
+                reference = _from_returns(earlier_scan, fit_noise, usable_range, growth)
             else:
                 reference = point_to_line.ReferenceScan.from_points(
                     scan_to_points(earlier_scan), fit_noise, usable_range,
                     small_objects=noise >= point_to_line.SMALL_OBJECT_NOISE,
-                    beam_spacing=abs(earlier_scan.angle_increment))
+                    beam_spacing=abs(earlier_scan.angle_increment),
+                    growth=growth)
             points = scan_to_points(_scan(ranges[1], model))[:, :2]
             z, pairs_used, covariance = point_to_line.refine_with_covariance(
                 reference, points, z_true * [start_scale, start_scale, 1.0])
@@ -214,15 +227,19 @@ def _corridor_poses(world, count, rng):
     return np.column_stack([x, y, heading])
 
 
-def _from_returns(scan, fit_noise, usable_range):
+def _from_returns(scan, fit_noise, usable_range, growth):
     """The reference of `scan` with its lines as a recording fits them, paired with and its
     residuals measured from the returns themselves."""
     from sclam_ros.frontend import point_to_line
     from sclam_ros.frontend.scan_matching import scan_to_points
 
     points = scan_to_points(scan)[:, :2]
-    normals, _, keep = point_to_line.line_decisions(points, fit_noise, usable_range)
-    return point_to_line.ReferenceScan.of_kept(points, normals, points, keep, usable_range)
+    normals, anchors, keep = point_to_line.line_decisions(points, fit_noise, usable_range,
+                                                          growth=growth)
+    reference = point_to_line.ReferenceScan.of_kept(points, normals, points, keep, usable_range)
+    if reference is not None and growth:  # weighed by the range of their walls, as the pipeline
+        reference.weights = 1.0 / (1.0 + growth * np.hypot(*anchors[keep].T)) ** 2
+    return reference
 
 
 def main():

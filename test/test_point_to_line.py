@@ -179,6 +179,34 @@ def test_range_noise_is_measured_from_the_scan(noise):
     assert np.median(estimates) == pytest.approx(noise, rel=0.25)
 
 
+def _office_scans_noise_growing(base, per_metre, count=30, seed=5):
+    """As _office_scans, with range noise base + per_metre × range (m)."""
+    scans = _office_scans(0.0, count, seed)
+    rng = np.random.default_rng(seed)
+    for scan in scans:
+        ranges = np.asarray(scan.ranges, float)
+        scan.ranges[:] = ranges + rng.normal(0.0, 1.0, ranges.shape) * (base + per_metre * ranges)
+    return scans
+
+
+@pytest.mark.parametrize("base, per_metre, growth, within", [
+    (0.02, 0.01, 0.5, 0.3), (0.01, 0.01, 1.0, 0.5), (0.03, 0.0, 0.0, 0.0), (0.05, 0.0, 0.0, 0.0)])
+def test_how_the_range_noise_grows_with_range_is_measured_from_the_scans(base, per_metre,
+                                                                         growth, within):
+    """σ(r) = base + per_metre·r: the judged growth (per_metre / base, 1/m) within 30 %
+    (50 % where the noise at 0 m, an extrapolation from 1-8 m, is half the growth over
+    1 m), and none on a laser whose noise does not grow (on the segments a matcher would
+    fit)."""
+    from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
+
+    matcher = point_to_line.RefinedScanMatcher(ScanMatcher())
+    for scan in _office_scans_noise_growing(base, per_metre):
+        matcher._remember_reference(scan, scan_to_points(scan))
+    assert matcher.fits_segments
+    assert matcher.growth == pytest.approx(growth, rel=within)
+    assert (matcher._reference.weights is not None) == (growth > 0)
+
+
 def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():
     from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
 

@@ -18,10 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import theilslopes
 
 from sclam_ros.core import se2
 from sclam_ros.frontend.scan_matching import range_limit, valid_beams
-from sclam_ros.frontend.wall_segments import scan_pieces, wall_lines
+from sclam_ros.frontend.wall_segments import (MIN_SEGMENT_RETURNS, scan_pieces,
+                                               straight_segments, wall_lines)
 
 NORMAL_NEIGHBOURS = 6
 # A noisy laser's lines (NOISY_RANGE) are its walls' whole straight segments instead, fitted
@@ -51,6 +53,29 @@ NORMAL_NEIGHBOURS = 6
 NOISY_RANGE = 0.02  # m
 NOT_A_NOISE = 0.1  # m
 NOISE_SCANS = 30
+# GROWTH: some lasers' range noise grows with range (a low-cost triangulation or
+# time-of-flight laser: 2 cm + 1 % of range, 12 cm at 10 m). Least squares that weigh every
+# return alike lean on the far, noisy returns, and the matches came out long: on pairs
+# along the simulator's office corridor (`python bench/refinement_bias.py --rows 17 25`,
+# the refinement from the true motion) +0.45 ± 0.09 % as the graph weighs them. Each return
+# is weighed by 1/σ(r)² instead, in the wall lines' fit (wall_segments) and in the
+# refinement, with r the range of its wall (where its beam meets its line), not its own
+# measured range: weighed by that, the returns the noise brought nearer weigh more. In
+# the calibrations (`python bench/sensor_matrix.py --rows 4 11 --seeds 80 --duration
+# 120`, paired seeds, weighed alike → by σ(r)): office, radii and base +0.061 / +0.039 /
+# +0.002 → +0.027 / +0.010 / −0.026 % (± 0.016 / 0.014 / 0.026), RMS 0.174 / 0.146 /
+# 0.233 → 0.148 / 0.122 / 0.232 %, match scale 1.0007 → 1.0004; corridors, RMS 0.228 /
+# 0.236 / 0.363 → 0.193 / 0.192 / 0.335 %. How the noise grows is measured, not configured
+# (range_errors of the first NOISE_SCANS reference scans, pooled: judged_growth): 2 cm + 1 %
+# of range (a growth of 0.5/m) is judged 0.21-0.65/m over 40 short drives in either indoor
+# scene, constant 3 cm and 5 cm noise as not growing on all 40. It is used on a laser that
+# fits segments where σ grows by GROWTH_SIGNIFICANT or more of its value at 0 m over the
+# ranges seen (to the median range of the farthest of GROWTH_BINS); else every return
+# weighs alike.
+GROWTH_BINS = 6
+GROWTH_SAMPLES = 100  # returns per bin at least
+GROWTH_MIN_SINE = 0.5
+GROWTH_SIGNIFICANT = 1.0
 MAX_PAIR_DISTANCE = 0.15  # m; KISS-ICP's answer is within a few cm
 # ALONG_LINE: on a reference whose returns are their own residual origins (lines fitted over
 # NORMAL_NEIGHBOURS beams), a new point is paired with its nearest return when it lies in an
@@ -162,10 +187,14 @@ class ReferenceScan:
     # (N,) m: how far along its line a new point may lie from each point and still be
     # paired with it (ALONG_LINE); None: within MAX_PAIR_DISTANCE of it.
     reach: np.ndarray | None = None
+    # (N,): the weight of a new point paired with each point, 1/(1 + growth·r)² where the
+    # range noise grows with range (GROWTH), r the range of the point's wall there; None:
+    # all alike.
+    weights: np.ndarray | None = None
 
     @classmethod
     def from_points(cls, points, noise=None, usable_range=np.inf, small_objects=False,
-                    beam_spacing=None):
+                    beam_spacing=None, growth=0.0):
         """The scan's points on lines, with their normals, or None if fewer than 10 are.
         noise: None fits each line over NORMAL_NEIGHBOURS beams and measures residuals from
         the points themselves; a noisy laser's measured range noise (m) fits lines to whole
@@ -177,14 +206,28 @@ class ReferenceScan:
         `points` are in beam order (scan_to_points): which way each return is used is
         judged from its neighbours in that order (BY_NEIGHBOURS).
         beam_spacing (rad): pair along the lines (ALONG_LINE) with the points that are
-        their own residual origins."""
+        their own residual origins.
+        growth (1/m): how the range noise grows with range (GROWTH), for the segments' fit
+        and the refinement's weights."""
         points = np.asarray(points, float)[:, :2]
         if len(points) < NORMAL_NEIGHBOURS + 1:
             return None
-        normals, anchors, keep = line_decisions(points, noise, usable_range, small_objects)
+        normals, anchors, keep = line_decisions(points, noise, usable_range, small_objects,
+                                                growth)
         # wall_lines leaves the returns on no segment their own anchors (OFF_SEGMENTS).
-        return cls.of_kept(anchors, normals, anchors, keep, usable_range, beam_spacing,
-                           own_origins=np.all(anchors == points, axis=1))
+        own_origins = np.all(anchors == points, axis=1)
+        reference = cls.of_kept(anchors, normals, anchors, keep, usable_range, beam_spacing,
+                                own_origins)
+        if reference is not None and growth:
+            # The range of each wall where a new point meets it: a segment's anchor (where
+            # the beam meets its line), else its neighbours' median range, never a return's
+            # own (weighed by that, the returns its noise brought nearer would weigh more).
+            wall_range = np.hypot(anchors[:, 0], anchors[:, 1])
+            returns = np.flatnonzero(own_origins & keep)
+            idx, exists = _beam_neighbours(points, returns)
+            wall_range[returns] = np.nanmedian(np.where(exists, wall_range[idx], np.nan), axis=1)
+            reference.weights = 1.0 / (1.0 + growth * wall_range[keep]) ** 2
+        return reference
 
     @classmethod
     def of_kept(cls, points, normals, anchors, keep, usable_range=np.inf, beam_spacing=None,
@@ -205,13 +248,13 @@ class ReferenceScan:
                    reach)
 
 
-def line_decisions(points, noise=None, usable_range=np.inf, small_objects=False):
+def line_decisions(points, noise=None, usable_range=np.inf, small_objects=False, growth=0.0):
     """(normals (N, 2), residual origins (N, 2), keep (N,) bool) of each of the scan's points
     (N ≥ NORMAL_NEIGHBOURS + 1, beam order), as ReferenceScan.from_points describes."""
     if noise is None:
         normals, keep = _beam_lines(points, usable_range, small_objects)
         return normals, points, keep
-    normals, anchors, keep = wall_lines(points, noise, usable_range)
+    normals, anchors, keep = wall_lines(points, noise, usable_range, growth)
     # OFF_SEGMENTS: returns on no straight segment are measured from their own beams' lines.
     off_segments = np.flatnonzero(~normals.any(axis=1))
     if len(off_segments):
@@ -308,6 +351,62 @@ def range_noise(scan):
     return float(1.4826 * np.median(np.abs(second)) / math.sqrt(6.0))
 
 
+def range_errors(scan, noise):
+    """(ranges, errors) (m) of the scan's returns on its straight segments (wall_segments,
+    judged with range noise `noise`), each return's error measured against the chord
+    between its two neighbours along its own beam: on a flat wall at any incidence the
+    noise-free return lies on that chord (the second difference of ranges does not: at
+    grazing incidence it holds centimetres of the wall's geometry). Only where the beam
+    meets the chord at GROWTH_MIN_SINE or more: nearer grazing the neighbours' noise moves
+    the meeting point by many times their own. The error's spread is √1.5 times the
+    return's range noise (its neighbours' share)."""
+    valid = valid_beams(scan)
+    r = np.where(valid, np.asarray(scan.ranges, float), 0.0)
+    angle = float(scan.angle_min) + float(scan.angle_increment) * np.arange(len(r))
+    u = np.column_stack([np.cos(angle), np.sin(angle)])
+    p = u * r[:, None]
+    returns = np.flatnonzero(valid)
+    on_wall = np.zeros(len(r), bool)
+    if len(returns) >= MIN_SEGMENT_RETURNS:
+        for segment in straight_segments(p[returns], noise):
+            on_wall[returns[segment]] = True
+    triple = on_wall[:-2] & on_wall[1:-1] & on_wall[2:]
+    first, beam, last = p[:-2][triple], u[1:-1][triple], p[2:][triple]
+    chord = last - first
+    across = beam[:, 0] * chord[:, 1] - beam[:, 1] * chord[:, 0]
+    steep = np.abs(across) >= GROWTH_MIN_SINE * np.maximum(np.hypot(*chord.T), 1e-12)
+    reach = (first[:, 0] * chord[:, 1] - first[:, 1] * chord[:, 0])[steep] / across[steep]
+    ranges = r[1:-1][triple][steep]
+    return ranges, ranges - reach
+
+
+def judged_growth(samples):
+    """growth (1/m) of ReferenceScan from range_errors' answers for several scans, pooled:
+    split into GROWTH_BINS by range, the robust spread in each (1.4826 × the median
+    absolute error / √1.5) against its median range gives σ(r) = a + b·r (robust line
+    through the bins), and growth =
+    b/a where σ grows by GROWTH_SIGNIFICANT or more of a over the ranges seen (to the
+    farthest bin's median range); else, or with fewer than GROWTH_SAMPLES per bin, 0."""
+    if not samples:
+        return 0.0
+    ranges = np.concatenate([r for r, _ in samples])
+    errors = np.abs(np.concatenate([e for _, e in samples]))
+    if len(ranges) < GROWTH_SAMPLES * GROWTH_BINS:
+        return 0.0
+    bins = np.array_split(np.argsort(ranges), GROWTH_BINS)
+    spread = np.array([1.4826 * np.median(errors[b]) / math.sqrt(1.5) for b in bins])
+    middle = np.array([np.median(ranges[b]) for b in bins])
+    # The median of the slopes between bins (Theil-Sen): the farthest bin's spread comes out
+    # low (of the far returns, the straight segments keep the quieter ones).
+    b, a = theilslopes(spread, middle)[:2]
+    if b <= 0.0:
+        return 0.0
+    # σ(0) is an extrapolation, and a small one makes the nearest returns weigh many times
+    # more than the next: it is taken as at least half the nearest bin's spread.
+    growth = b / max(a, 0.5 * spread[0])
+    return float(growth) if growth * middle[-1] >= GROWTH_SIGNIFICANT else 0.0
+
+
 class RefinedScanMatcher:
     """A scan matcher (scan_matching.ScanMatcher) whose motions are refined point-to-line
     against the scan they start from.
@@ -328,6 +427,8 @@ class RefinedScanMatcher:
         # NOISE_SCANS reference scans, then fixed: ReferenceScan.from_points fits segments.
         self.fits_segments = False
         self.range_noises = []
+        self.range_errors = []  # range_errors() of the same scans while fits_segments
+        self.growth = 0.0  # 1/m, judged from them (GROWTH)
         self._segment_noise = None  # their median while fits_segments, for from_points(noise=)
         self._clearance = 0.0  # m kept clear of the range limit (CLEAR_OF_LIMIT)
         self._small_objects = False  # their median is SMALL_OBJECT_NOISE or more
@@ -387,11 +488,15 @@ class RefinedScanMatcher:
         """The scan just posed is the next match's reference; the first NOISE_SCANS judge
         the laser's noise, and with it how the reference's lines are fitted and how far
         from the range limit they must be (CLEAR_OF_LIMIT)."""
-        noise = range_noise(scan) if len(self.range_noises) < NOISE_SCANS else None
+        judging = len(self.range_noises) < NOISE_SCANS
+        noise = range_noise(scan) if judging else None
         if noise is not None:  # the judgement changes only here, so it is made only here
             self.range_noises.append(noise)
             median = float(np.median(self.range_noises))
             self.fits_segments = NOISY_RANGE <= median <= NOT_A_NOISE
+            if self.fits_segments:
+                self.range_errors.append(range_errors(scan, median))
+            self.growth = judged_growth(self.range_errors) if self.fits_segments else 0.0
             self._segment_noise = median if self.fits_segments else None
             # Beyond NOT_A_NOISE the estimate says nothing about the laser: no clearance.
             self._clearance = CLEAR_OF_LIMIT * median if median <= NOT_A_NOISE else 0.0
@@ -399,7 +504,8 @@ class RefinedScanMatcher:
         usable = range_limit(scan, self.matcher.config.max_range) - self._clearance
         self._reference = ReferenceScan.from_points(points, self._segment_noise, usable,
                                                     self._small_objects,
-                                                    abs(float(scan.angle_increment)))
+                                                    abs(float(scan.angle_increment)),
+                                                    growth=self.growth)
 
 
 def _confirmed(reference, points, z_icp):
@@ -498,6 +604,8 @@ def refine_with_covariance(reference: ReferenceScan, points, z0):
         # ∂(R(θ) q + t)/∂θ = S R(θ) q: the rotated point turned by 90°.
         jac = np.stack((nx, ny, ny * rx - nx * ry))  # (3, n)
         weight = np.minimum(1.0, HUBER / np.maximum(np.abs(residual), 1e-12))
+        if reference.weights is not None:  # GROWTH: 1/σ² of the range, relative to σ at 0 m
+            weight = weight * reference.weights[i]
         weighted = jac * weight
         hessian = weighted @ jac.T + 1e-9 * np.eye(3)
         try:
@@ -508,5 +616,7 @@ def refine_with_covariance(reference: ReferenceScan, points, z0):
         if math.hypot(step[0], step[1]) < 1e-6 and abs(step[2]) < 1e-7:
             break
     z[2] = se2.wrap_angle(z[2])
-    scale = 1.4826 * float(np.median(np.abs(residual)))
+    # The scale of the residuals as weighed (of σ at 0 m where the noise grows with range).
+    whitened = residual if reference.weights is None else residual * np.sqrt(reference.weights[i])
+    scale = 1.4826 * float(np.median(np.abs(whitened)))
     return z, used, scale ** 2 * np.linalg.inv(hessian)

@@ -86,9 +86,10 @@ def scan_pieces(points, margin):
     return [piece for piece in np.split(order, np.flatnonzero(cut[order][:-1]) + 1)], False
 
 
-def wall_lines(points, noise, usable_range=np.inf):
+def wall_lines(points, noise, usable_range=np.inf, growth=0.0):
     """(normals (N, 2), anchors (N, 2), keep (N,) bool) of a noisy laser's returns `points`
-    (N, 2, beam order) with range noise `noise` (m): each kept return's wall line (its
+    (N, 2, beam order) with range noise `noise` (m), growing with range as 1 + growth·r
+    (growth in 1/m; the fits weigh each return by 1/σ²): each kept return's wall line (its
     normal, and where the return's beam meets it). Returns on no straight segment are not
     kept (their normal is zero and their anchor the return itself), nor are those at a
     grazing incidence to their line, whose anchor lies beyond `usable_range` (m), or that
@@ -100,7 +101,7 @@ def wall_lines(points, noise, usable_range=np.inf):
     segment_of = np.full(n, -1)  # index in `lines` of each return's segment
     lines = []  # (normal, distance, the segment's returns)
     for segment in straight_segments(points, noise):
-        line = _line_on_ranges(points[segment], noise)
+        line = _line_on_ranges(points[segment], noise, growth)
         if line is None:
             continue
         normal, distance = line
@@ -216,7 +217,7 @@ def _total_least_squares(p):
             math.sqrt(max(spreads[1], 0.0)))
 
 
-def _line_on_ranges(p, noise):
+def _line_on_ranges(p, noise, growth=0.0):
     """(normal, distance from the laser) of the wall line n·x = distance through a straight
     segment's returns p (n, 2), fitted on their ranges, or None where the segment is
     shorter than MIN_SEGMENT_LENGTH or the fit fails. Returns more than 3σ off the
@@ -228,12 +229,13 @@ def _line_on_ranges(p, noise):
         normal, centre, _, along = _total_least_squares(p)
     if along * math.sqrt(12.0) < MIN_SEGMENT_LENGTH:  # a uniform stretch of length L: L/√12
         return None
-    return _fit_on_ranges(p, normal, centre)
+    return _fit_on_ranges(p, normal, centre, growth)
 
 
-def _fit_on_ranges(p, normal, centre):
-    """(normal, distance) minimising Σ (r_i − distance / cos(φ_i − θ))² over the returns'
-    ranges r_i and bearings φ_i, θ the normal's angle: Gauss-Newton from the
+def _fit_on_ranges(p, normal, centre, growth=0.0):
+    """(normal, distance) minimising Σ w_i (r_i − distance / cos(φ_i − θ))² over the returns'
+    ranges r_i and bearings φ_i, θ the normal's angle, w_i = 1/(1 + growth·r_i)² (1/σ² of
+    a range noise that grows with range, wall_lines): Gauss-Newton from the
     total-least-squares line (normal, centre). Beams that meet that line more glancingly
     than MIN_COS_INCIDENCE are left out of the fit (a small turn of the line moves their
     predicted range by metres); None if fewer than MIN_SEGMENT_RETURNS are left."""
@@ -251,10 +253,15 @@ def _fit_on_ranges(p, normal, centre):
         cos = np.cos(incidence)
         if np.any(cos < 0.5 * MIN_COS_INCIDENCE):
             return None  # the fit turned the line onto a beam: not a wall these returns fix
+        # Each return's weight from the range its beam meets the line at, not its measured
+        # range: weighed by the latter, the returns its noise brought nearer would weigh
+        # more and pull the line toward the laser.
+        weight = 1.0 / (1.0 + growth * distance / cos) ** 2
         residual = ranges - distance / cos
         jacobian = np.column_stack([-1.0 / cos, distance * np.sin(incidence) / cos ** 2])
         try:
-            step = np.linalg.solve(jacobian.T @ jacobian, -jacobian.T @ residual)
+            step = np.linalg.solve(jacobian.T @ (weight[:, None] * jacobian),
+                                   -jacobian.T @ (weight * residual))
         except np.linalg.LinAlgError:
             return None
         distance, theta = distance + step[0], theta + step[1]
