@@ -242,6 +242,10 @@ def _warn_about_input(rejections, frontend) -> None:
                  "on): wall lines fitted to whole straight segments instead of %d beams",
                  1e3 * median(refined.range_noises), 1e3 * point_to_line.NOISY_RANGE,
                  point_to_line.NORMAL_NEIGHBOURS)
+    if refined is not None and refined.growth:
+        log.info("the laser's range noise grows with range (by %.0f %% of its value at 0 m per "
+                 "metre, measured on its first scans): returns weighed by 1/σ(range)²",
+                 100.0 * refined.growth)
     unrefined = refined.unrefined if refined is not None else {}
     if unrefined:
         # KISS-ICP's motion alone is biased where the refinement fails (point_to_line.py).
