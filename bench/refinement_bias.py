@@ -237,8 +237,11 @@ def _from_returns(scan, fit_noise, usable_range, growth):
     normals, anchors, keep = point_to_line.line_decisions(points, fit_noise, usable_range,
                                                           growth=growth)
     reference = point_to_line.ReferenceScan.of_kept(points, normals, points, keep, usable_range)
-    if reference is not None and growth:  # weighed by the range of their walls, as the pipeline
-        reference.weights = 1.0 / (1.0 + growth * np.hypot(*anchors[keep].T)) ** 2
+    if reference is not None and growth:  # weighed by their neighbours' ranges (own_ranges)
+        ranges = np.hypot(points[:, 0], points[:, 1])
+        reference.growth = growth
+        idx, exists = point_to_line._beam_neighbours(points, np.flatnonzero(keep))
+        reference.own_ranges = np.nanmedian(np.where(exists, ranges[idx], np.nan), axis=1)
     return reference
 
 

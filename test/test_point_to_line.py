@@ -204,7 +204,7 @@ def test_how_the_range_noise_grows_with_range_is_measured_from_the_scans(base, p
         matcher._remember_reference(scan, scan_to_points(scan))
     assert matcher.fits_segments
     assert matcher.growth == pytest.approx(growth, rel=within)
-    assert (matcher._reference.weights is not None) == (growth > 0)
+    assert matcher._reference.growth == matcher.growth
 
 
 def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():
@@ -244,10 +244,10 @@ def test_refinement_covariance_is_large_where_the_walls_do_not_fix_the_motion():
 URG_ANGLES = np.radians(np.linspace(-120.0, 120.0, 683))  # a URG-04LX's beams
 
 
-def _box_room_points(pose, noise, rng, half_x=2.5, half_y=2.0):
-    """A URG-04LX-like laser (3 cm range noise) at `pose` in a closed 5 × 4 m room centred
-    at the origin: its returns in the laser frame."""
-    bearing = URG_ANGLES + pose[2]
+def _box_room_points(pose, noise, rng, half_x=2.5, half_y=2.0, angles=URG_ANGLES):
+    """A URG-04LX-like laser (3 cm range noise; or beams at `angles`) at `pose` in a closed
+    5 × 4 m room centred at the origin: its returns in the laser frame."""
+    bearing = angles + pose[2]
     c, s = np.cos(bearing), np.sin(bearing)
     ranges = np.full(bearing.shape, np.inf)
     with np.errstate(divide="ignore"):
@@ -258,7 +258,7 @@ def _box_room_points(pose, noise, rng, half_x=2.5, half_y=2.0):
             t = (wall - pose[1]) / s
             ranges = np.where((t > 0) & (t < ranges), t, ranges)
     ranges = ranges + rng.normal(0.0, noise, ranges.shape)
-    return np.column_stack([ranges * np.cos(URG_ANGLES), ranges * np.sin(URG_ANGLES)])
+    return np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
 
 
 def test_noisy_wall_refinement_is_not_held_at_its_start():
@@ -537,3 +537,31 @@ def test_a_noisy_laser_measures_from_beam_lines_where_no_segment_is_long_enough(
     # The wall's returns are as the segment fit left them.
     assert np.array_equal(kept[~on_side], segment_keep[~on_side])
     assert np.array_equal(normals[~on_side], segment_normals[~on_side])
+
+
+def test_refinement_weighed_by_a_growing_range_noise_is_unbiased_and_tighter():
+    """A 12 m × 3 m hall seen from 1.5 m before one end by a 360° laser whose range noise
+    grows with range (2 cm + 1 % of range) in the new scan, the reference's lines exact:
+    weighed by 1/σ² of the range at which each point's beam meets its line (growth 0.5/m,
+    as judged), the refined forward motion is unbiased (within 3 standard errors of the true
+    15 cm) and scatters less than with every point weighed alike (Gauss-Markov): the near
+    end wall's returns are the quieter."""
+    rng = np.random.default_rng(8)
+    room = dict(half_x=6.0, half_y=1.5, angles=ANGLES)
+    start, motion = np.array([4.5, 0.3, 0.05]), np.array([-0.15, 0.0, 0.0])
+    clean = _box_room_points(start, 0.0, rng, **room)
+    errors = {0.0: [], 0.5: []}
+    for growth, found in errors.items():
+        reference = point_to_line.ReferenceScan.from_points(clean, 0.05, growth=growth)
+        draws = np.random.default_rng(9)
+        for _ in range(150):
+            new = _box_room_points(se2.compose(start, motion), 0.0, draws, **room)
+            ranges = np.hypot(new[:, 0], new[:, 1])
+            new = new * (1.0 + draws.normal(0.0, 1.0, len(new)) * (0.02 + 0.01 * ranges)
+                         / ranges)[:, None]
+            z, used, _ = point_to_line.refine_with_covariance(reference, new, motion)
+            assert used > 200
+            found.append(z[0] - motion[0])
+    alike, weighed = np.array(errors[0.0]), np.array(errors[0.5])
+    assert abs(weighed.mean()) < 3 * weighed.std() / np.sqrt(len(weighed))
+    assert weighed.std() < 0.95 * alike.std()  # 3.9 against 4.2 mm on these draws

@@ -60,12 +60,15 @@ NOISE_SCANS = 30
 # the refinement from the true motion) +0.45 ± 0.09 % as the graph weighs them. Each return
 # is weighed by 1/σ(r)² instead, in the wall lines' fit (wall_segments) and in the
 # refinement, with r the range of its wall (where its beam meets its line), not its own
-# measured range: weighed by that, the returns the noise brought nearer weigh more. In
+# measured range: weighed by that, the returns the noise brought nearer weigh more
+# (_range_weights). In
 # the calibrations (`python bench/sensor_matrix.py --rows 4 11 --seeds 80 --duration
 # 120`, paired seeds, weighed alike → by σ(r)): office, radii and base +0.061 / +0.039 /
-# +0.002 → +0.029 / +0.013 / −0.024 % (± 0.017 / 0.014 / 0.026), RMS 0.174 / 0.146 /
-# 0.233 → 0.151 / 0.126 / 0.232 %, match scale 1.0007 → 1.0004; bare corridors, RMS 0.228
-# / 0.236 / 0.363 → 0.198 / 0.199 / 0.337 %. How the noise grows is measured, not configured (range_errors of
+# +0.002 → +0.045 / +0.029 / −0.007 % (± 0.016 / 0.014 / 0.026), RMS 0.174 / 0.146 /
+# 0.233 → 0.152 / 0.125 / 0.231 %, match scale 1.0007 → 1.0004; bare corridors, RMS 0.228
+# / 0.236 / 0.363 → 0.194 / 0.193 / 0.333 %. (Weighed by the range of the reference
+# point a new point is paired with, which the new point's noise chooses, the office radii
+# came out +0.029 / +0.013 %.) How the noise grows is measured, not configured (range_errors of
 # the first NOISE_SCANS reference scans, pooled: judged_growth; `python
 # bench/noise_growth.py`): 2 cm + 1 % of range (a growth of 0.5/m) is judged 0.24-0.84/m
 # on 80 of 80 short drives in the two indoor scenes, constant 3 cm and 5 cm noise as not
@@ -188,10 +191,12 @@ class ReferenceScan:
     # (N,) m: how far along its line a new point may lie from each point and still be
     # paired with it (ALONG_LINE); None: within MAX_PAIR_DISTANCE of it.
     reach: np.ndarray | None = None
-    # (N,): the weight of a new point paired with each point, 1/(1 + growth·r)² where the
-    # range noise grows with range (GROWTH), r the range of the point's wall there; None:
-    # all alike.
-    weights: np.ndarray | None = None
+    # 1/m: the range noise grows as 1 + growth·r, and the new scan's points weigh
+    # 1/(1 + growth·r)² (GROWTH); 0: alike. own_ranges (N,) m: the r of a point paired with
+    # a return that is its own residual origin (its beam neighbours' median range); NaN for
+    # a segment's anchor, where r is where the new point's beam meets the line.
+    growth: float = 0.0
+    own_ranges: np.ndarray | None = None
 
     @classmethod
     def from_points(cls, points, noise=None, usable_range=np.inf, small_objects=False,
@@ -220,14 +225,15 @@ class ReferenceScan:
         reference = cls.of_kept(anchors, normals, anchors, keep, usable_range, beam_spacing,
                                 own_origins)
         if reference is not None and growth:
-            # The range of each wall where a new point meets it: a segment's anchor (where
-            # the beam meets its line), else its neighbours' median range, never a return's
-            # own (weighed by that, the returns its noise brought nearer would weigh more).
-            wall_range = np.hypot(anchors[:, 0], anchors[:, 1])
+            # A return that is its own origin is weighed by its neighbours' median range,
+            # never its own: weighed by that, the returns its noise brought nearer would
+            # weigh more (and the line through it moves with its noise).
+            own_ranges = np.full(len(points), np.nan)
             returns = np.flatnonzero(own_origins & keep)
             idx, exists = _beam_neighbours(points, returns)
-            wall_range[returns] = np.nanmedian(np.where(exists, wall_range[idx], np.nan), axis=1)
-            reference.weights = 1.0 / (1.0 + growth * wall_range[keep]) ** 2
+            ranges = np.hypot(points[:, 0], points[:, 1])
+            own_ranges[returns] = np.nanmedian(np.where(exists, ranges[idx], np.nan), axis=1)
+            reference.growth, reference.own_ranges = growth, own_ranges[keep]
         return reference
 
     @classmethod
@@ -559,6 +565,22 @@ def pairs(reference: ReferenceScan, moved, origin):
     return ok, idx
 
 
+def _range_weights(reference, i, nx, ny, rx, ry, z):
+    """GROWTH's weights 1/(1 + growth·r)² of new points paired with the reference's points
+    i (their lines' normals nx, ny; the points rotated into the reference, R(θ)q = (rx, ry);
+    the motion z): r where each point's beam meets its line, which does not depend on the
+    point's own range noise (its measured range does, and so does which reference point it
+    is paired with: weighed by either, the points the noise brought nearer would weigh
+    more), or the reference's own_ranges."""
+    anchors = reference.anchors[i]
+    distance = np.abs(nx * (anchors[:, 0] - z[0]) + ny * (anchors[:, 1] - z[1]))
+    cos_incidence = np.abs(nx * rx + ny * ry) / np.maximum(np.hypot(rx, ry), 1e-12)
+    wall_range = distance / np.maximum(cos_incidence, MIN_COS_INCIDENCE)
+    own = reference.own_ranges[i]
+    wall_range = np.where(np.isnan(own), wall_range, own)
+    return 1.0 / (1.0 + reference.growth * wall_range) ** 2
+
+
 def refine(reference: ReferenceScan, points, z0):
     """(z, number of pairs used) of refine_with_covariance."""
     z, used, _ = refine_with_covariance(reference, points, z0)
@@ -605,8 +627,9 @@ def refine_with_covariance(reference: ReferenceScan, points, z0):
         # ∂(R(θ) q + t)/∂θ = S R(θ) q: the rotated point turned by 90°.
         jac = np.stack((nx, ny, ny * rx - nx * ry))  # (3, n)
         weight = np.minimum(1.0, HUBER / np.maximum(np.abs(residual), 1e-12))
-        if reference.weights is not None:  # GROWTH: 1/σ² of the range, relative to σ at 0 m
-            weight = weight * reference.weights[i]
+        if reference.growth:
+            range_weight = _range_weights(reference, i, nx, ny, rx, ry, z)
+            weight = weight * range_weight
         weighted = jac * weight
         hessian = weighted @ jac.T + 1e-9 * np.eye(3)
         try:
@@ -618,6 +641,6 @@ def refine_with_covariance(reference: ReferenceScan, points, z0):
             break
     z[2] = se2.wrap_angle(z[2])
     # The scale of the residuals as weighed (of σ at 0 m where the noise grows with range).
-    whitened = residual if reference.weights is None else residual * np.sqrt(reference.weights[i])
+    whitened = residual * np.sqrt(range_weight) if reference.growth else residual
     scale = 1.4826 * float(np.median(np.abs(whitened)))
     return z, used, scale ** 2 * np.linalg.inv(hessian)
