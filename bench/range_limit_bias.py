@@ -130,9 +130,9 @@ def _laser_seed(job):
         return Scan(0.0, ranges, model.angle_min, model.angle_increment, model.range_min, np.inf)
 
     rng = np.random.default_rng(seed)
-    judged = [point_to_line.range_noise(scan(_measure(world.raycast(p, angles, model.range_max), model,
-                                                      rng, {}, 0))) for p in start[:30]]
-    noise = float(np.median([n for n in judged if n is not None]))
+    noise, growth = point_to_line.judged_laser(
+        [scan(_measure(world.raycast(p, angles, model.range_max), model, rng, {}, 0))
+         for p in start[:30]])
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
     usable = model.range_max - point_to_line.CLEAR_OF_LIMIT * noise
     sums = {name: np.zeros(2) for name in VARIANTS}
@@ -156,7 +156,8 @@ def _laser_seed(job):
                 reference = point_to_line.ReferenceScan.from_points(
                     scan_to_points(earlier_scan), None if variant.get("narrow") else fit_noise,
                     usable if variant.get("clearance", True) else np.inf,
-                    beam_spacing=abs(earlier_scan.angle_increment))
+                    beam_spacing=abs(earlier_scan.angle_increment),
+                    growth=0.0 if variant.get("narrow") else growth)
                 z, used, covariance = point_to_line.refine_with_covariance(
                     reference, scan_to_points(scan(later))[:, :2], z_true)
                 if not used:

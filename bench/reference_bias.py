@@ -68,14 +68,13 @@ def _offsets(job):
     scans = [Scan(0.0, r, model.angle_min, model.angle_increment, model.range_min, model.range_max)
              for r in measured]
     # The laser's noise judged as RefinedScanMatcher judges it, and what follows from it.
-    judged = [n for n in map(point_to_line.range_noise, scans[:point_to_line.NOISE_SCANS]) if n is not None]
-    noise = float(np.median(judged))
+    noise, growth = point_to_line.judged_laser(scans)
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
     usable = model.range_max - (point_to_line.CLEAR_OF_LIMIT * noise if noise <= point_to_line.NOT_A_NOISE else 0.0)
     ranges, offsets = [], []
     for pose, scan in zip(poses, scans):
         points = scan_to_points(scan)[:, :2]
-        reference = point_to_line.ReferenceScan.from_points(points, fit_noise, usable)
+        reference = point_to_line.ReferenceScan.from_points(points, fit_noise, usable, growth=growth)
         if reference is None:
             continue
         origin = reference.anchors

@@ -158,13 +158,10 @@ def _measure_row(job):
     # RefinedScanMatcher does (median over 30 scans), whichever scan carries noise here.
     judging = [_scan(model.measure(world.raycast(p, angles, model.range_max)[None], rng)[0], model)
                for p in laser_poses[:30]]
-    noise = float(np.median([n for n in map(point_to_line.range_noise, judging) if n is not None]))
+    noise, growth = point_to_line.judged_laser(judging)
     fit_noise = noise if point_to_line.NOISY_RANGE <= noise <= point_to_line.NOT_A_NOISE else None
-    # How the noise grows with range, judged as RefinedScanMatcher does (GROWTH).
-    growth = 0.0
-    if fit_noise is not None and not options.get("alike"):
-        growth = point_to_line.judged_growth([point_to_line.range_errors(scan, noise)
-                                              for scan in judging])
+    if options.get("alike"):  # the returns weighed alike, not by a noise growing with range
+        growth = 0.0
     if options.get("fit") == "narrow":
         fit_noise = None
     elif options.get("fit") == "noisy":  # noise-free returns, the laser model's noise's lines

@@ -200,11 +200,14 @@ def test_how_the_range_noise_grows_with_range_is_measured_from_the_scans(base, p
     from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
 
     matcher = point_to_line.RefinedScanMatcher(ScanMatcher())
-    for scan in _office_scans_noise_growing(base, per_metre):
+    scans = _office_scans_noise_growing(base, per_metre)
+    for scan in scans:
         matcher._remember_reference(scan, scan_to_points(scan))
     assert matcher.fits_segments
     assert matcher.growth == pytest.approx(growth, rel=within)
     assert matcher._reference.growth == matcher.growth
+    # The benches' judgement without a matcher is the matcher's.
+    assert point_to_line.judged_laser(scans) == (np.median(matcher.range_noises), matcher.growth)
 
 
 def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():

@@ -414,6 +414,25 @@ def judged_growth(samples):
     return float(b / a) if b_low / a * middle[-1] >= GROWTH_SIGNIFICANT else 0.0
 
 
+def judged_laser(scans):
+    """(median range noise (m), growth (1/m)) of a laser as RefinedScanMatcher judges them
+    from the first NOISE_SCANS of `scans` that give a range_noise (for benches that build
+    ReferenceScans without a matcher); growth 0 unless the median makes it fit segments."""
+    noises, errors = [], []
+    for scan in scans:
+        if len(noises) >= NOISE_SCANS:
+            break
+        noise = range_noise(scan)
+        if noise is None:
+            continue
+        noises.append(noise)
+        median = float(np.median(noises))
+        if NOISY_RANGE <= median <= NOT_A_NOISE:
+            errors.append(range_errors(scan, median))
+    median = float(np.median(noises))
+    return median, (judged_growth(errors) if NOISY_RANGE <= median <= NOT_A_NOISE else 0.0)
+
+
 class RefinedScanMatcher:
     """A scan matcher (scan_matching.ScanMatcher) whose motions are refined point-to-line
     against the scan they start from.
