@@ -7,8 +7,8 @@ and point_to_line.judged_growth fits σ(r) = a + b·r to them, growth = b/a (0 w
 not grow enough over the ranges seen to matter). Here the same judgement runs on the first
 30 scans, 0.3 s apart, of each of `--drives` random routes per scene, for the sensor
 matrix's noisy lasers (bench/sensor_matrix.py: the URG-04LX-like, 5 cm and low-cost lasers,
-the last with its dropouts and mixed pixels); the simulator's truth for the low-cost laser
-is 0.01 / 0.02 = 0.5 per metre, for the others 0.
+the last with its dropouts and mixed pixels), indoors and outdoors; the simulator's truth
+for the low-cost laser is 0.01 / 0.02 = 0.5 per metre, for the others 0.
 
 Run: .venv/bin/python bench/noise_growth.py [--drives 40]
 """
@@ -68,7 +68,7 @@ def main():
     ap.add_argument("--drives", type=int, default=40, help="routes per scene and laser")
     args = ap.parse_args()
     rows = []
-    for scene in ("office", "corridors"):
+    for scene in ("office", "corridors", "outdoor"):
         world = scene_world(scene)
         for name, (laser, truth) in LASERS.items():
             growth = np.array([judged(world, laser, seed) for seed in range(1, args.drives + 1)])

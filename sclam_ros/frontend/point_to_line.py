@@ -71,8 +71,8 @@ NOISE_SCANS = 30
 # came out +0.029 / +0.013 %.) How the noise grows is measured, not configured (range_errors of
 # the first NOISE_SCANS reference scans, pooled: judged_growth; `python
 # bench/noise_growth.py`): 2 cm + 1 % of range (a growth of 0.5/m) is judged 0.24-0.84/m
-# on 80 of 80 short drives in the two indoor scenes, constant 3 cm and 5 cm noise as not
-# growing on all 160. It is used on a laser that fits segments where σ grows by
+# on 80 of 80 short drives in the two indoor scenes (outdoors, with few straight surfaces,
+# on 5 of 40), constant 3 cm and 5 cm noise as not growing on all 240. It is used on a laser that fits segments where σ grows by
 # GROWTH_SIGNIFICANT or more of its value at 0 m over the ranges seen (to the median range
 # of the farthest of GROWTH_BINS), judged by the slope's lower 95 % bound; else every
 # return weighs alike.
