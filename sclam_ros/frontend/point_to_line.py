@@ -429,6 +429,8 @@ def judged_laser(scans):
         median = float(np.median(noises))
         if NOISY_RANGE <= median <= NOT_A_NOISE:
             errors.append(range_errors(scan, median))
+    if not noises:
+        return math.nan, 0.0  # no scan to judge it by: a quiet laser's lines, no clearance
     median = float(np.median(noises))
     return median, (judged_growth(errors) if NOISY_RANGE <= median <= NOT_A_NOISE else 0.0)
 
@@ -514,8 +516,7 @@ class RefinedScanMatcher:
         """The scan just posed is the next match's reference; the first NOISE_SCANS judge
         the laser's noise, and with it how the reference's lines are fitted and how far
         from the range limit they must be (CLEAR_OF_LIMIT)."""
-        judging = len(self.range_noises) < NOISE_SCANS
-        noise = range_noise(scan) if judging else None
+        noise = range_noise(scan) if len(self.range_noises) < NOISE_SCANS else None
         if noise is not None:  # the judgement changes only here, so it is made only here
             self.range_noises.append(noise)
             median = float(np.median(self.range_noises))

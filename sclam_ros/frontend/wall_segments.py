@@ -234,8 +234,9 @@ def _line_on_ranges(p, noise, growth=0.0):
 
 def _fit_on_ranges(p, normal, centre, growth=0.0):
     """(normal, distance) minimising Σ w_i (r_i − distance / cos(φ_i − θ))² over the returns'
-    ranges r_i and bearings φ_i, θ the normal's angle, w_i = 1/(1 + growth·r_i)² (1/σ² of
-    a range noise that grows with range, wall_lines): Gauss-Newton from the
+    ranges r_i and bearings φ_i, θ the normal's angle, w_i = 1/(1 + growth·ρ_i)² (1/σ² of
+    a range noise that grows with range, wall_lines; ρ_i = distance / cos(φ_i − θ), where
+    the beam meets the line): Gauss-Newton from the
     total-least-squares line (normal, centre). Beams that meet that line more glancingly
     than MIN_COS_INCIDENCE are left out of the fit (a small turn of the line moves their
     predicted range by metres); None if fewer than MIN_SEGMENT_RETURNS are left."""
