@@ -231,14 +231,12 @@ def _from_returns(scan, fit_noise, usable_range, growth):
     from sclam_ros.frontend.scan_matching import scan_to_points
 
     points = scan_to_points(scan)[:, :2]
-    normals, anchors, keep = point_to_line.line_decisions(points, fit_noise, usable_range,
-                                                          growth=growth)
+    normals, _, keep = point_to_line.line_decisions(points, fit_noise, usable_range,
+                                                    growth=growth)
     reference = point_to_line.ReferenceScan.of_kept(points, normals, points, keep, usable_range)
     if reference is not None and growth:  # weighed by their neighbours' ranges (own_ranges)
-        ranges = np.hypot(points[:, 0], points[:, 1])
         reference.growth = growth
-        idx, exists = point_to_line._beam_neighbours(points, np.flatnonzero(keep))
-        reference.own_ranges = np.nanmedian(np.where(exists, ranges[idx], np.nan), axis=1)
+        reference.own_ranges = point_to_line.neighbours_range(points, np.flatnonzero(keep))
     return reference
 
 

@@ -230,9 +230,7 @@ class ReferenceScan:
             # weigh more (and the line through it moves with its noise).
             own_ranges = np.full(len(points), np.nan)
             returns = np.flatnonzero(own_origins & keep)
-            idx, exists = _beam_neighbours(points, returns)
-            ranges = np.hypot(points[:, 0], points[:, 1])
-            own_ranges[returns] = np.nanmedian(np.where(exists, ranges[idx], np.nan), axis=1)
+            own_ranges[returns] = neighbours_range(points, returns)
             reference.growth, reference.own_ranges = growth, own_ranges[keep]
         return reference
 
@@ -317,14 +315,19 @@ def _object_extent(points):
     return extent
 
 
+def neighbours_range(points, which):
+    """(M,) m: the median range of the neighbours in beam order of each of the returns
+    `which` (indices), the return itself left out (BY_NEIGHBOURS)."""
+    idx, exists = _beam_neighbours(points, which)
+    return np.nanmedian(np.where(exists, np.hypot(points[idx, 0], points[idx, 1]), np.nan), axis=1)
+
+
 def _neighbours_within(points, usable_range, which):
-    """(M,) bool: the median range of the neighbours in beam order of each of the returns
-    `which` (indices) is within `usable_range` (BY_NEIGHBOURS; all True when it is infinite)."""
+    """(M,) bool: the neighbours_range of each of the returns `which` (indices) is within
+    `usable_range` (BY_NEIGHBOURS; all True when it is infinite)."""
     if not np.isfinite(usable_range):
         return np.ones(len(which), bool)
-    idx, exists = _beam_neighbours(points, which)
-    ranges = np.where(exists, np.hypot(points[idx, 0], points[idx, 1]), np.nan)
-    return np.nanmedian(ranges, axis=1) <= usable_range
+    return neighbours_range(points, which) <= usable_range
 
 
 def _line_fit(points, idx):
