@@ -11,7 +11,13 @@ where they were made:
   - elsewhere: every other match (in the corridors scene: in its lobbies, and turning or
     crossing inside its corridors).
 
-Per place: the number of matches, its share of the matches' weight (information along the
+The same matches are also split by how well each one fixes its own motion: σ/L, the σ of
+the matched translation along the true motion (from the information the graph gives the
+match, translation marginal) over the motion's length L. A match whose scans do not fix
+its motion (in the middle of a bare corridor, its walls out of range) stays near where the
+scan matcher started it, and its σ says so.
+
+Per group: the number of matches, its share of the matches' weight (information along the
 motion), and the scale of the matched translations, weighted as the graph weighs them,
 1 + Σ w·e·L / Σ w·L² (e the error along the true motion, L its length, w the information
 along it), and unweighted, Σ z·z_true / Σ |z_true|² (bench/sensor_matrix.py's), each ±
@@ -19,8 +25,8 @@ its standard error from resampling the seeds. Matches shorter than 2 cm are left
 direction is not defined).
 
 Run: .venv/bin/python bench/match_scale_by_place.py [--row 4] [--seeds 80] [--duration 120] [--jobs 2]
-     (--row: any row of bench/sensor_matrix.py whose scene has corridors: the office's or
-      the corridors scene's)
+     (--row: any row of bench/sensor_matrix.py; the split by place needs a scene with
+      corridors, the office's or the corridors scene's)
 """
 from __future__ import annotations
 
@@ -39,6 +45,9 @@ from sensor_matrix import ROWS, along_motion, matches_against_truth  # noqa: E40
 from sclam_ros.sim.world import CORRIDORS  # noqa: E402
 
 ALONG = np.radians(20.0)  # motion within this of the corridor's direction
+# Groups by σ/L of the match along its motion: (label, lower bound, upper bound).
+FIXED = (("motion fixed to σ/L < 3 %", 0.0, 0.03), ("σ/L 3–10 %", 0.03, 0.10),
+         ("σ/L 10–30 %", 0.10, 0.30), ("σ/L 30 % or more", 0.30, np.inf))
 
 
 def run_seed(job):
@@ -57,11 +66,17 @@ def run_seed(job):
     start = se2.compose(np.broadcast_to(np.array(truth["odom_origin_in_world"], float), start.shape), start)
     keep, error, length, weight = along_motion(z, z_true, information)
     heading = start[keep, 2] + np.arctan2(z_true[keep, 1], z_true[keep, 0])  # of the motion, world
-    corridor = along_a_corridor(CORRIDORS[row.get("scene", "office")], start[keep, :2], heading)
-    return {place: (np.sum(weight[k] * error[k] * length[k]), np.sum(weight[k] * length[k] ** 2),
+    bands = CORRIDORS.get(row.get("scene", "office"), ())
+    corridor = along_a_corridor(bands, start[keep, :2], heading)
+    unit = z_true[keep, :2] / length[:, None]
+    covariance = np.linalg.inv(information[keep])[:, :2, :2]
+    sigma_share = np.sqrt(np.einsum("mi,mij,mj->m", unit, covariance, unit)) / length
+    groups = [("along a corridor", corridor), ("elsewhere", ~corridor)] if bands else []
+    groups += [(label, (sigma_share >= low) & (sigma_share < high)) for label, low, high in FIXED]
+    groups.append(("all", np.ones_like(corridor)))
+    return {group: (np.sum(weight[k] * error[k] * length[k]), np.sum(weight[k] * length[k] ** 2),
                     np.sum(error[k] * length[k]), np.sum(length[k] ** 2), int(k.sum()))
-            for place, k in (("along a corridor", corridor), ("elsewhere", ~corridor),
-                             ("all", np.ones_like(corridor)))}
+            for group, k in groups}
 
 
 def along_a_corridor(bands, position, heading):
@@ -90,8 +105,6 @@ def main():
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()
     name, row = list(ROWS.items())[args.row]
-    if row.get("scene", "office") not in CORRIDORS:
-        ap.error(f"row {args.row} ({name}) is in a scene without corridors")
     workdir = scratch_dir("match_scale_by_place")
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_seed, [(row, seed, args.duration, workdir)
@@ -99,8 +112,11 @@ def main():
     rng = np.random.default_rng(0)
     total_weight = sum(r["all"][1] for r in results)
     cells = []
-    for place in ("along a corridor", "elsewhere", "all"):
+    for place in results[0]:
         sums = np.array([r[place] for r in results], float)  # (seeds, 5)
+        if not sums[:, 4].any():
+            cells.append([place, 0, "0.00", "—", "—"])
+            continue
         weighted, weighted_error = _ratio_with_error(sums[:, 0], sums[:, 1], rng)
         plain, plain_error = _ratio_with_error(sums[:, 2], sums[:, 3], rng)
         cells.append([place, int(sums[:, 4].sum()), f"{sums[:, 1].sum() / total_weight:.2f}",

@@ -25,6 +25,7 @@ A second table gives the RMS err/σ with the σ of each covariance the reported 
 of: H⁻¹, the chain-correlated model, the sandwich (estimator.calibrate_keyframes).
 
 Run: .venv/bin/python bench/sensor_matrix.py [--seeds 10] [--duration 120] [--jobs 2] [--rows ...]
+     [--first-seed 1: seeds first-seed .. first-seed + seeds - 1, to add seeds to a row]
      [--save results.json: every seed's numbers]
      [--factors urg|low-cost: that row with one factor at a time set back to the default's]
      [--true-nominal: the true calibration as the nominal one, so the odometry guess the
@@ -273,6 +274,7 @@ def mirrored_row(row) -> dict:
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--duration", type=float, default=120.0)
     ap.add_argument("--jobs", type=int, default=2, help="processes at once (one per core)")
     ap.add_argument("--rows", nargs="+", type=int, default=None,
@@ -298,7 +300,7 @@ def main():
         ROWS.update({n: mirrored_row(ROWS[n]) for n in names})
     workdir = scratch_dir("sclam_sensor_matrix_")
     jobs = [(number, name, ROWS[name], seed, args.duration, workdir, args.true_nominal)
-            for number, name in enumerate(names) for seed in range(1, args.seeds + 1)]
+            for number, name in enumerate(names) for seed in range(args.first_seed, args.first_seed + args.seeds)]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_one, jobs))
     if args.save:
@@ -306,7 +308,8 @@ def main():
     for r in results:
         if r["failed"]:
             print(f"{r['name']} seed {r['seed']}: no calibration: {r['failed']}", file=sys.stderr)
-    print(f"PowerBot, {args.seeds} seeds × {args.duration:.0f} s per row; errors against the "
+    print(f"PowerBot, {args.seeds} seeds ({args.first_seed}–{args.first_seed + args.seeds - 1}) × "
+          f"{args.duration:.0f} s per row; errors against the "
           f"simulator's truth" + ("; the true calibration as nominal" if args.true_nominal else "")
           + (f"; outdoor scene {args.outdoor_variant}" if args.outdoor_variant else "")
           + ("; the scene and the robot mirrored" if args.mirrored else ""))
