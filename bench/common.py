@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import resource
 import shutil
@@ -51,6 +52,28 @@ def simulate_and_calibrate(robot, duration, seed, true_overrides=None, nominal_o
     recording = read_recording(out, params)
     result = calibrate_keyframes(recording.keyframes, params, recording.rejections)
     return truth, result, time.perf_counter() - start, out
+
+
+@contextlib.contextmanager
+def observed_refinements():
+    """Within it, every refinement the front end makes is recorded, not changed: yields the
+    list that point_to_line._confirmed's calls are appended to, each (reference scan, the
+    new scan's points, KISS-ICP's z, its answer (refined z, covariance, reason or None))."""
+    from sclam_ros.frontend import point_to_line
+
+    calls = []
+    confirmed = point_to_line._confirmed
+
+    def recording_confirmed(reference, points, z_icp):
+        out = confirmed(reference, points, z_icp)
+        calls.append((reference, np.array(points), np.array(z_icp), out))
+        return out
+
+    point_to_line._confirmed = recording_confirmed
+    try:
+        yield calls
+    finally:
+        point_to_line._confirmed = confirmed
 
 
 # The simulated PowerBot's laser mount on base_link (x, y m, yaw rad).

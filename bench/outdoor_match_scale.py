@@ -21,7 +21,7 @@ trunks as square boxes of the same width (flat faces and corners), without the t
 the length of the true motion (the step), all seeds pooled.
 
 The front end is observed, not changed: point_to_line._confirmed is wrapped to record each
-match's reference scan, points and KISS-ICP answer.
+match's reference scan, points and KISS-ICP answer (common.observed_refinements).
 
 Run: .venv/bin/python bench/outdoor_match_scale.py [--seeds 8] [--duration 120] [--jobs 2]
 """
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import scratch_dir, seeds_arguments, table  # noqa: E402
+from common import observed_refinements, scratch_dir, seeds_arguments, table  # noqa: E402
 
 VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "trunks as square boxes",
             "without the trunks", "without the parked cars")
@@ -72,23 +72,14 @@ def run_case(job):
     from sclam_ros.sim import simulate
 
     restore = scene_variant(variant)
-    calls = []
-    confirmed = point_to_line._confirmed
-
-    def recording_confirmed(reference, points, z_icp):
-        out = confirmed(reference, points, z_icp)
-        calls.append((reference, np.array(points), np.array(z_icp), out))
-        return out
-
-    point_to_line._confirmed = recording_confirmed
     try:
-        bag = Path(workdir) / f"{VARIANTS.index(variant)}_{seed}"
-        truth = simulate(bag, duration=duration, seed=seed, overwrite=True, scene="outdoor")
-        params = SclamParams.from_yaml(bag / "params.yaml")
-        keyframes = read_recording(bag, params).keyframes
-        stamps_gt, poses_gt = read_ground_truth(bag)
+        with observed_refinements() as calls:
+            bag = Path(workdir) / f"{VARIANTS.index(variant)}_{seed}"
+            truth = simulate(bag, duration=duration, seed=seed, overwrite=True, scene="outdoor")
+            params = SclamParams.from_yaml(bag / "params.yaml")
+            keyframes = read_recording(bag, params).keyframes
+            stamps_gt, poses_gt = read_ground_truth(bag)
     finally:
-        point_to_line._confirmed = confirmed
         restore()
     mount = np.array([truth["laser_x"], truth["laser_y"], truth["laser_yaw"]])
     heading = np.unwrap(poses_gt[:, 2])
