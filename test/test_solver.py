@@ -113,7 +113,13 @@ def test_redundancy_is_exact_where_the_scan_matches_barely_see_along_the_street(
     matches are nearly blind along the laser's x (a street: 0.4 m there, 1 cm across).
     The poses along it are a random walk of the odometry that H⁻¹ couples end to end; a
     stochastic trace estimate scatters far outside [0, n_g] there, and the variance
-    components built on it ran the scan matches' scale to 0.035."""
+    components built on it ran the scan matches' scale to 0.035.
+
+    Tolerance: 0.5 of one absorbed parameter. H's condition number here is about 2e15
+    (the poses' position along the street is barely fixed), so double precision fixes the
+    trace only to about cond·eps ≈ 0.2, by any method: the dense inverse and the banded
+    one differ by 0.005-0.15 with the CPU's BLAS kernels. The stochastic estimate was off
+    by hundreds, and a missing or doubled term of the banded inverse by one or more."""
     g = make_graph(n=300, seed=11)
     g["laser_sigma"] = np.array([0.4, 0.01, 0.002])
     problem = build_problem(g)
@@ -125,7 +131,7 @@ def test_redundancy_is_exact_where_the_scan_matches_barely_see_along_the_street(
         rows = system.jacobian[start:stop].toarray()
         exact = system.per_factor[name]["dim"] - np.trace(rows @ inverse @ rows.T)
         assert 0.0 <= redundancy[name][0] <= system.per_factor[name]["dim"]
-        assert redundancy[name][0] == pytest.approx(exact, rel=1e-3), name
+        assert redundancy[name][0] == pytest.approx(exact, abs=0.5), name
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
