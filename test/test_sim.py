@@ -490,3 +490,15 @@ def test_cli_writes_a_bag_and_reports_errors(tmp_path, capsys):
     assert simulate_command.main([str(tmp_path / "x"), "--true", "wheel_radius=1", "--quiet"]) == 2
     assert "unknown true value" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_laser_range_resolution_reports_multiples_of_it():
+    """A driver that rounds (the Freiburg benchmark's SICK logs: about 2.5-5 cm) reports
+    multiples of the resolution; the rounding error is at most half a step."""
+    true = np.linspace(0.5, 10.0, 400)[None, :]
+    model = LaserModel(beams=400, range_noise=0.0, range_resolution=0.05, range_max=20.0)
+    measured = model.measure(true, np.random.default_rng(1))
+    np.testing.assert_allclose(measured / 0.05, np.round(measured / 0.05), atol=1e-9)
+    assert np.abs(measured - true).max() <= 0.025 + 1e-12
+    with pytest.raises(ValueError, match="range_resolution"):
+        LaserModel(range_resolution=-0.01)

@@ -8,6 +8,9 @@ and ``ATTRIBUTION.md`` (source, commit and licence; keep it with the data).
               and /scan (Hokuyo URG-04LX, frame 'laser')
   optiodom    SRC = <id>_run-NN.csv of OptiOdom: /joint_states (cumulative ticks) and
               /mocap/odom (motion-capture ground truth); no laser
+  carmen      SRC = a CARMEN log (.clf, optionally .bz2/.gz; ODOM, FLASER, ROBOTLASER1,
+              PARAM): /joint_states (wheel angles implied from the logged odometry with
+              the nominal radius and wheel base), /scan and /odom (the log's odometry)
 """
 from __future__ import annotations
 
@@ -25,6 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-delay", type=float, default=0.0, metavar="S",
                         help="breezyslam only: each scan was taken S seconds before its log line "
                              "(the Mines logs: 0.16, found by sclam diagnose; default 0)")
+    parser.add_argument("--nominal-radius", type=float, default=None, metavar="M",
+                        help="carmen only: wheel radius the wheel rotations are implied with "
+                             "(default 0.1 m)")
+    parser.add_argument("--nominal-base", type=float, default=None, metavar="M",
+                        help="carmen only: wheel base the wheel rotations are implied with "
+                             "(default 0.4 m)")
 
 
 def run(args) -> int:
@@ -34,7 +43,15 @@ def run(args) -> int:
 
     if args.scan_delay and args.format != "breezyslam":
         raise CommandError("--scan-delay applies to breezyslam logs only")
+    nominal = {"radius": args.nominal_radius, "base": args.nominal_base}
+    if any(v is not None for v in nominal.values()) and args.format != "carmen":
+        raise CommandError("--nominal-radius and --nominal-base apply to carmen logs only")
+    for name, value in nominal.items():
+        if value is not None and not (0 < value < 10):
+            raise CommandError(f"--nominal-{name} must be in (0, 10) m, got {value}")
     options = {"scan_delay": args.scan_delay} if args.format == "breezyslam" else {}
+    if args.format == "carmen":
+        options = {k: v for k, v in nominal.items() if v is not None}
     summary = CONVERTERS[args.format](args.src, args.out, args.storage, **options)
     print(f"wrote {args.out}/bag, params.yaml, ATTRIBUTION.md: "
           + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"

@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="probability that a beam with a target returns nothing (default: %(default)s)")
     parser.add_argument("--mixed-pixels", type=float, default=0.0,
                         help="probability of a point between the surfaces at a depth edge (default: %(default)s)")
+    parser.add_argument("--range-resolution", type=float, default=0.0,
+                        help="m: ranges reported as multiples of this, 0 for continuous "
+                             "(default: %(default)s)")
     parser.add_argument("--scene", choices=tuple(SCENES), default="office",
                         help="office: walls and furniture; outdoor: trees, poles, parked cars; "
                              "corridors: a ring of bare corridors between four lobbies (default: %(default)s)")
@@ -95,7 +98,8 @@ def run(args) -> int:
             motion=args.motion,
             laser=dict(fov=math.radians(args.fov), range_max=args.range_max,
                        range_noise_per_m=args.range_noise_per_m, dropout=args.dropout,
-                       mixed_pixels=args.mixed_pixels),
+                       mixed_pixels=args.mixed_pixels,
+                       range_resolution=args.range_resolution),
         )
     except (ValueError, BagError) as exc:
         print(f"sclam simulate: error: {exc}", file=sys.stderr)

@@ -22,12 +22,14 @@ optiodom (github.com/sousarbarb/optiodom ``data/diff/*/<id>_run-NN.csv``, MIT):
 """
 from __future__ import annotations
 
+import math
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from sclam_ros.io import carmen
 from sclam_ros.io.bag import BagWriter
 from sclam_ros.core.inputs import Scan
 from sclam_ros.core.params import SclamParams
@@ -178,7 +180,61 @@ def convert_optiodom(src, out, storage="sqlite3") -> dict:
     return {"samples": len(stamps), "duration_s": float(stamps[-1] - stamps[0])}
 
 
-CONVERTERS = {"breezyslam": convert_breezyslam, "optiodom": convert_optiodom}
+# --- carmen -------------------------------------------------------------------------
+CARMEN = Source(
+    name="CARMEN log (Radish / Freiburg SLAM benchmark format)",
+    repository="the log's own source (see the licence file beside it)",
+    paths="a .clf / .log file, optionally .bz2 or .gz",
+    commit="as distributed with the log",
+    licence="as stated beside the log; the Freiburg benchmark logs are CC-BY-3.0: cite Kümmerle, "
+            "Steder, Dornhege, Ruhnke, Grisetti, Stachniss, Kleiner, \"On measuring the accuracy "
+            "of SLAM algorithms\", Autonomous Robots 27(4), 2009",
+    licence_file="LICENSE",
+    notes="Wheel rotations are implied from the logged odometry poses with the nominal radius "
+          "and wheel base in params.yaml: the calibration is relative to them.",
+)
+
+
+def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_RADIUS,
+                   base: float = carmen.NOMINAL_BASE) -> dict:
+    """/joint_states (wheel angles in rad implied from the odometry poses), /scan, and the
+    log's odometry as /odom (nav_msgs/Odometry, for comparison only)."""
+    try:
+        log = carmen.read_carmen(src)
+    except carmen.CarmenError as exc:
+        raise ConvertError(str(exc)) from None
+    stamps, poses, odometry_source = carmen.odometry_track(log)
+    order = np.argsort(stamps, kind="stable")
+    backwards = int(np.count_nonzero(np.diff(stamps) < 0))
+    stamps, poses = stamps[order], poses[order]
+    angles, sideways = carmen.implied_wheel_angles(poses, radius, base)
+    mount = carmen.laser_mount(log)
+    out = _prepare(out)
+    with BagWriter(out / "bag", storage) as bag:
+        messages = [(stamp, 0, i) for i, stamp in enumerate(stamps)]
+        messages += [(laser.stamp, 1, i) for i, laser in enumerate(log.lasers)]
+        for stamp, kind, i in sorted(messages):
+            if kind == 0:
+                bag.write_joint_state("/joint_states", stamp, JOINTS, angles[i])
+                bag.write_odometry("/odom", stamp, poses[i])
+            else:
+                bag.write_scan("/scan", carmen.laser_scan(log.lasers[i]))
+    params = carmen.carmen_params(mount, radius, base)
+    notes = (f"{len(stamps)} odometry poses (from {odometry_source}) and {len(log.lasers)} scans, "
+             f"{stamps[-1] - stamps[0]:.1f} s; nominal wheel radius {radius} m and wheel base "
+             f"{base} m; laser mount ({mount[0]:.3f} m, {mount[1]:.3f} m, "
+             f"{math.degrees(mount[2]):.2f}°); sideways odometry dropped: "
+             f"{np.abs(sideways).sum():.3f} m in total")
+    if backwards:
+        notes += f"; {backwards} odometry stamps out of order, sorted"
+    _finish(out, src, CARMEN, params, notes)
+    return {"scans": len(log.lasers), "odometry": len(stamps),
+            "duration_s": float(stamps[-1] - stamps[0]),
+            "sideways_m": float(np.abs(sideways).sum())}
+
+
+CONVERTERS = {"breezyslam": convert_breezyslam, "optiodom": convert_optiodom,
+              "carmen": convert_carmen}
 
 
 # --- shared --------------------------------------------------------------------------

@@ -68,6 +68,9 @@ class LaserModel:
     range_noise_per_m: float = 0.0  # 1σ per m of range
     dropout: float = 0.0  # probability per beam
     mixed_pixels: float = 0.0  # probability per beam at a depth edge
+    # m: reported ranges are multiples of this (0: continuous). Real drivers round: a SICK
+    # LMS in its cm mode to 1 cm, the Freiburg benchmark logs to about 2.5 cm.
+    range_resolution: float = 0.0
 
     def __post_init__(self):
         if not 0.0 < self.fov <= 2.0 * np.pi + 1e-12:
@@ -78,6 +81,8 @@ class LaserModel:
         for name in ("dropout", "mixed_pixels"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"{name} is a probability in [0, 1), got {getattr(self, name)}")
+        if not 0.0 <= self.range_resolution < self.range_max:
+            raise ValueError(f"range_resolution must be in [0, range_max), got {self.range_resolution}")
 
     @property
     def full_circle(self) -> bool:
@@ -102,6 +107,8 @@ class LaserModel:
         hit = np.isfinite(ranges)
         sigma = self.range_noise + self.range_noise_per_m * ranges[hit]
         ranges[hit] += sigma * rng.standard_normal(int(hit.sum()))
+        if self.range_resolution > 0.0:
+            ranges[hit] = np.round(ranges[hit] / self.range_resolution) * self.range_resolution
         if self.dropout > 0.0:
             ranges[hit & (rng.random(ranges.shape) < self.dropout)] = np.inf
         # A noisy reading still inside the limits; a real driver reports nothing otherwise.
