@@ -60,17 +60,26 @@ def test_converted_log_has_joint_states_scans_params_and_attribution(tmp_path):
     log = tmp_path / "robot.clf"
     _write_log(log, poses, stamps)
     out = tmp_path / "out"
-    assert cli.main(["convert", "carmen", str(log), str(out), "--nominal-base", "0.35"]) == 0
+    assert cli.main(["convert", "carmen", str(log), str(out), "--nominal-base", "0.35",
+                     "--scan-delay", "0.1"]) == 0
     params = SclamParams.from_yaml(out / "params.yaml")
     assert params.ticks_per_revolution == 0 and params.wheel_base == pytest.approx(0.35)
     assert params.laser_x == pytest.approx(0.25, abs=1e-6) and params.laser_y == pytest.approx(0, abs=1e-6)
     joints = [m for _, _, m in bag.iter_messages(out / "bag", ["/joint_states"])]
-    scans = [m for _, _, m in bag.iter_messages(out / "bag", ["/scan"])]
+    scan_records = list(bag.iter_messages(out / "bag", ["/scan"]))
+    scans = [m for _, _, m in scan_records]
+    # Each scan stamped 0.1 s before its line (laser lines are at the ODOM stamp + 0.01 s),
+    # recorded at the line's time.
+    stamp = scans[3].header.stamp.sec + 1e-9 * scans[3].header.stamp.nanosec
+    assert stamp == pytest.approx(stamps[3] + 0.01 - 0.1, abs=1e-6)
+    assert scan_records[3][1] == pytest.approx(stamps[3] + 0.01, abs=1e-6)
     assert len(joints) == len(scans) == len(poses)
     angles = np.array([m.position for m in joints])
     np.testing.assert_allclose(relations.wheel_odometry(angles, [0.1, 0.1, 0.35]), poses, atol=1e-6)
     scan = scans[0]
-    assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.angle_increment == pytest.approx(math.radians(1))
+    # 180 beams from −90° to +90° inclusive, as the benchmark's own logtools read them.
+    assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.angle_increment == pytest.approx(math.pi / 179)
+    assert scan.angle_max == pytest.approx(math.pi / 2)
     assert math.isinf(scan.ranges[-2]) and scan.ranges[-1] == pytest.approx(2.5)  # 50 m: no return
     assert "Kümmerle" in (out / "ATTRIBUTION.md").read_text()
 

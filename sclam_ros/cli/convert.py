@@ -26,8 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3",
                         help="rosbag2 storage (default: %(default)s)")
     parser.add_argument("--scan-delay", type=float, default=0.0, metavar="S",
-                        help="breezyslam only: each scan was taken S seconds before its log line "
-                             "(the Mines logs: 0.16, found by sclam diagnose; default 0)")
+                        help="breezyslam and carmen: each scan was taken S seconds before its log "
+                             "line (the Mines logs: 0.16, found by sclam diagnose; the ACES log: "
+                             "0.1, from its ground truth; default 0)")
     parser.add_argument("--nominal-radius", type=float, default=None, metavar="M",
                         help="carmen only: wheel radius the wheel rotations are implied with "
                              "(default 0.1 m)")
@@ -41,8 +42,8 @@ def run(args) -> int:
     from sclam_ros.cli.main import CommandError
     from sclam_ros.io.convert import CONVERTERS
 
-    if args.scan_delay and args.format != "breezyslam":
-        raise CommandError("--scan-delay applies to breezyslam logs only")
+    if args.scan_delay and args.format not in ("breezyslam", "carmen"):
+        raise CommandError("--scan-delay applies to breezyslam and carmen logs only")
     nominal = {"radius": args.nominal_radius, "base": args.nominal_base}
     if any(v is not None for v in nominal.values()) and args.format != "carmen":
         raise CommandError("--nominal-radius and --nominal-base apply to carmen logs only")
@@ -52,6 +53,7 @@ def run(args) -> int:
     options = {"scan_delay": args.scan_delay} if args.format == "breezyslam" else {}
     if args.format == "carmen":
         options = {k: v for k, v in nominal.items() if v is not None}
+        options["scan_delay"] = args.scan_delay
     summary = CONVERTERS[args.format](args.src, args.out, args.storage, **options)
     print(f"wrote {args.out}/bag, params.yaml, ATTRIBUTION.md: "
           + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"

@@ -22,8 +22,11 @@ Where the log has no ODOM lines, the odometry pose logged inside each laser line
 The laser's mount comes from the laser lines (laser pose against robot pose), else from the
 ``robot_frontlaser_offset`` PARAM (metres ahead of the robot's centre), else 0.
 
-FLASER beams: the SICK LMS of these logs in its 1° mode, n beams from −90° upwards, 1° apart
-(the convention of the CARMEN and GMapping readers); ROBOTLASER1 states its own geometry.
+FLASER beams: n beams spanning 180° from −90° to +90° inclusive, π/(n − 1) apart, as the
+logtools of the benchmark's authors read them (``carmen_parse_line``); ROBOTLASER1 states its
+own geometry. The spacing matters: read 1° apart instead, the 180 beams of the ACES log
+span 179°, and the scan matches' rotations come out 1.5 % too large against the benchmark's
+relations (docs/real_data.md).
 The maximal range marks "no return" and becomes +inf (REP-117).
 """
 from __future__ import annotations
@@ -46,7 +49,7 @@ NOMINAL_RADIUS = 0.1  # m
 NOMINAL_BASE = 0.4  # m
 JOINTS = ("left_wheel_joint", "right_wheel_joint")
 FLASER_MAX_RANGE = 50.0  # m: the SICK LMS in the benchmark logs reports no return as 50 m
-FLASER_INCREMENT = math.radians(1.0)
+FLASER_FOV = math.pi  # rad, −90° to +90° inclusive
 NO_RETURN_MARGIN = 0.01  # m: a reading within this of the maximum is "no return"
 
 
@@ -96,7 +99,8 @@ def _flaser(tokens, where) -> LaserLine:
         raise CarmenError(f"{where}: FLASER line shorter than its {n} readings say")
     return LaserLine(
         stamp=float(tokens[2 + n + 6]), ranges=np.asarray(values[:n]),
-        angle_min=-math.pi / 2, angle_increment=FLASER_INCREMENT, range_max=FLASER_MAX_RANGE,
+        angle_min=-FLASER_FOV / 2, angle_increment=FLASER_FOV / max(n - 1, 1),
+        range_max=FLASER_MAX_RANGE,
         laser_pose=np.asarray(values[n:n + 3]), robot_pose=np.asarray(values[n + 3:n + 6]))
 
 
@@ -210,9 +214,10 @@ def carmen_params(mount, radius=NOMINAL_RADIUS, base=NOMINAL_BASE) -> SclamParam
     ).validate()
 
 
-def laser_scan(laser: LaserLine) -> Scan:
+def laser_scan(laser: LaserLine, delay: float = 0.0) -> Scan:
+    """The scan of a laser line, stamped ``delay`` s before the line's ipc_timestamp."""
     ranges = np.array(laser.ranges, dtype=float)
     ranges[ranges >= laser.range_max - NO_RETURN_MARGIN] = np.inf
-    return Scan(stamp=laser.stamp, ranges=ranges, angle_min=laser.angle_min,
+    return Scan(stamp=laser.stamp - delay, ranges=ranges, angle_min=laser.angle_min,
                 angle_increment=laser.angle_increment, range_min=0.0,
                 range_max=laser.range_max, time_increment=0.0, frame_id="laser")

@@ -196,9 +196,11 @@ CARMEN = Source(
 
 
 def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_RADIUS,
-                   base: float = carmen.NOMINAL_BASE) -> dict:
+                   base: float = carmen.NOMINAL_BASE, scan_delay: float = 0.0) -> dict:
     """/joint_states (wheel angles in rad implied from the odometry poses), /scan, and the
-    log's odometry as /odom (nav_msgs/Odometry, for comparison only)."""
+    log's odometry as /odom (nav_msgs/Odometry, for comparison only). ``scan_delay`` (s):
+    each scan was taken this long before its line's ipc_timestamp; it is stamped that much
+    earlier and recorded at the line's time, as a late message is."""
     try:
         log = carmen.read_carmen(src)
     except carmen.CarmenError as exc:
@@ -218,7 +220,8 @@ def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_R
                 bag.write_joint_state("/joint_states", stamp, JOINTS, angles[i])
                 bag.write_odometry("/odom", stamp, poses[i])
             else:
-                bag.write_scan("/scan", carmen.laser_scan(log.lasers[i]))
+                bag.write_scan("/scan", carmen.laser_scan(log.lasers[i], scan_delay),
+                               record_time_s=stamp)
     params = carmen.carmen_params(mount, radius, base)
     notes = (f"{len(stamps)} odometry poses (from {odometry_source}) and {len(log.lasers)} scans, "
              f"{stamps[-1] - stamps[0]:.1f} s; nominal wheel radius {radius} m and wheel base "
@@ -227,6 +230,8 @@ def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_R
              f"{np.abs(sideways).sum():.3f} m in total")
     if backwards:
         notes += f"; {backwards} odometry stamps out of order, sorted"
+    if scan_delay:
+        notes += f"; scans stamped {scan_delay * 1e3:.0f} ms before their log line"
     _finish(out, src, CARMEN, params, notes)
     return {"scans": len(log.lasers), "odometry": len(stamps),
             "duration_s": float(stamps[-1] - stamps[0]),
