@@ -273,15 +273,15 @@ def test_dense_and_sparse_linear_systems_agree(monkeypatch):
     """Small problems (the online window) are linearised into a dense Jacobian and solved
     by one dense Cholesky; large ones stay sparse (banded Cholesky + Schur). Both are the
     same mathematics: the same Jacobian, optimum and covariance to rounding."""
-    from sclam_ros.core import solver
+    from sclam_ros.core import problem as problem_module
 
     g = make_graph(n=60, seed=5)
     problem = build_problem(g)
-    assert problem.layout.size <= solver.DENSE_MAX_COLUMNS
+    assert problem.layout.size <= problem_module.DENSE_MAX_COLUMNS
     dense_system = problem.linear_system(problem.values)
     dense = levenberg_marquardt(problem)
     dense_cov = marginal_covariance(problem, dense.values, ["odometry", "laser"])
-    monkeypatch.setattr(solver, "DENSE_MAX_COLUMNS", 0)
+    monkeypatch.setattr(problem_module, "DENSE_MAX_COLUMNS", 0)
     sparse_system = problem.linear_system(problem.values)
     assert isinstance(dense_system.jacobian, np.ndarray)
     assert not isinstance(sparse_system.jacobian, np.ndarray)
