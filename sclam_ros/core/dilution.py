@@ -42,8 +42,8 @@ from __future__ import annotations
 import numpy as np
 
 from sclam_ros.core import kinematics
+from sclam_ros.core.covariance import absorbed_trace
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import absorbed_trace
 
 
 # The correction is first order in noise²/signal²: applied where it moves no calibration

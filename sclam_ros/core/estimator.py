@@ -11,17 +11,13 @@ import numpy as np
 
 from sclam_ros.core import dilution
 from sclam_ros.core import graph as graph_mod
+from sclam_ros.core.correlated_covariance import chain_correlated_covariance, sandwich_covariance
+from sclam_ros.core.covariance import Influence, remaining_step
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.observability import Observability
 from sclam_ros.core.params import CALIBRATION_KEYS
+from sclam_ros.core.variance_components import solve_with_variance_components
 from sclam_ros.core.wiring import wiring_problem
-from sclam_ros.core.solver import (
-    Influence,
-    chain_correlated_covariance,
-    remaining_step,
-    sandwich_covariance,
-    solve_with_variance_components,
-)
 
 MIN_KEYFRAMES = 10
 

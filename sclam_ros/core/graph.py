@@ -15,7 +15,7 @@ from scipy.sparse.csgraph import connected_components
 from sclam_ros.core import dilution, factors, kinematics, se2
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import CauchyKernel, Problem, Values
+from sclam_ros.core.problem import CauchyKernel, Problem, Values
 
 # Weak priors on the calibration at its nominal value. They carry no information a real
 # run would notice (σ far beyond any plausible mounting error), but they keep the system
