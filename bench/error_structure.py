@@ -58,7 +58,8 @@ def whitened_at_truth(result, bag, truth, name) -> np.ndarray:
 
 def run_one(job):
     row_name, seed, duration, workdir = job
-    from sclam_ros.core import solver
+    from sclam_ros.core.correlated_covariance import chain_correlated_covariance, chained_edges
+    from sclam_ros.core.covariance import Influence
     from sclam_ros.core.estimator import calibrate_keyframes
     from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
     from sclam_ros.io.recording import read_recording
@@ -72,23 +73,23 @@ def run_one(job):
     out = dict(row=row_name)
     for name in FACTORS:
         whitened, factor = whitened_at_truth(result, bag, truth, name)
-        t, u = solver.chained_edges(factor)
+        t, u = chained_edges(factor)
         square = np.mean(whitened**2, axis=0)
         out[f"{name} square"] = square
         out[f"{name} lag-1"] = np.mean(whitened[t] * whitened[u], axis=0) / square
     error = np.array([result.estimate[k] - truth[k] for k in CALIBRATION_KEYS])
     problem, blocks = result.problem, ["odometry", "laser"]
-    influence = solver.Influence.of(problem, problem.values, blocks)
-    one_scale, residual_rho = solver.chain_correlated_covariance(
+    influence = Influence.of(problem, problem.values, blocks)
+    one_scale, residual_rho = chain_correlated_covariance(
         problem, problem.values, blocks, influence=influence, per_component=False)
-    chain, _ = solver.chain_correlated_covariance(problem, problem.values, blocks, influence=influence)
+    chain, _ = chain_correlated_covariance(problem, problem.values, blocks, influence=influence)
     # H⁻¹ Jᵀ C J H⁻¹ with C's blocks changed from the model's (identity, and the residuals'
     # ρ between chained matches) to the truth's: rows are J H⁻¹ E per whitened row.
     rows = {name: influence.rows[start:stop].reshape(-1, 3, len(error))
             for name, start, stop in influence.system.row_ranges if name in FACTORS}
     odometry = np.einsum("tip,i,tiq->pq", rows["odometry"], out["odometry square"] - 1.0, rows["odometry"])
     laser_factor = next(f for f in problem.factors if f.name == "laser")
-    t, u = solver.chained_edges(laser_factor)
+    t, u = chained_edges(laser_factor)
     true_rho = np.clip(out["laser lag-1"], -0.5, 0.0)
     las = rows["laser"]
     laser = (np.einsum("tip,i,tiq->pq", las, out["laser square"] - 1.0, las)

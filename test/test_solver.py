@@ -4,22 +4,18 @@ import scipy.sparse as sp
 from synthetic import make_graph
 
 from sclam_ros.core import factors, kinematics
-from sclam_ros.core.graph import GraphInputs, initial_poses
-from sclam_ros.core.solver import (
-    CauchyKernel,
+from sclam_ros.core.correlated_covariance import chain_correlated_covariance, sandwich_covariance
+from sclam_ros.core.covariance import (
     Influence,
-    chain_correlated_covariance,
-    component_scales,
-    LinearSolver,
-    Problem,
-    Values,
     factorize_information,
-    levenberg_marquardt,
     marginal_covariance,
     redundancy_by_factor,
-    sandwich_covariance,
-    solve_with_variance_components,
 )
+from sclam_ros.core.graph import GraphInputs, initial_poses
+from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
+from sclam_ros.core.linear import LinearSolver
+from sclam_ros.core.problem import CauchyKernel, Problem, Values
+from sclam_ros.core.variance_components import component_scales, solve_with_variance_components
 
 NOMINAL_K = np.array([0.125, 0.125, 0.56])
 NOMINAL_L = np.array([0.22, 0.0, 0.0])

@@ -10,9 +10,10 @@ estimate (solver.solve_with_variance_components).
 """
 import numpy as np
 
+from sclam_ros.core.covariance import Influence
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
-from sclam_ros.core.solver import Influence, component_scales
+from sclam_ros.core.variance_components import component_scales
 from sclam_ros.io.recording import read_ground_truth, read_recording
 from sclam_ros.sim import simulate
 
