@@ -2,8 +2,8 @@
 
 The reported σ is right if each edge type's errors have the covariance the graph states
 for them, times the one variance scale per edge type that the calibration estimates from
-its residuals (solver.solve_with_variance_components), with the lag-1 correlation of
-consecutive scan matches that the chain-correlated model adds. Here each edge's error is
+its residuals (variance_components.solve_with_variance_components), with the lag-1
+correlation of consecutive scan matches that the chain-correlated model adds. Here each edge's error is
 taken at the truth (the simulator's poses and calibration), whitened by the stated model
 and divided by that scale, per component (x, y, θ of the edge):
 
@@ -12,8 +12,8 @@ and divided by that scale, per component (x, y, θ of the edge):
   - lag-1 correlation between consecutive edges (the scan matches share a scan);
   - RMS err/σ per parameter of the chain-correlated covariance with one noise scale per
     edge type, with the odometry's scale per component from the residuals (as the
-    calibration computes it, solver.component_scales), and with what only the simulator
-    knows put in their place: the odometry's variance per component at the truth's mean
+    calibration computes it, variance_components.component_scales), and with what only the
+    simulator knows put in their place: the odometry's variance per component at the truth's mean
     square, then also the scan matches' variance and lag-1 correlation per component.
     Where these move RMS err/σ toward 1, the stated shape is what makes the σ
     conservative, not the estimate of one scale or one correlation.

@@ -200,8 +200,9 @@ def merged_keyframe(segment, index):
 
 # Lag-1 correlation of consecutive scan-match errors: each scan's own error enters the
 # match before it and the match after it with opposite signs (−0.5 if that were all).
-# Measured −0.41 to −0.47 on the frontend's output (solver.sandwich_covariance); the
-# smaller magnitude is used so that the merged covariance errs on the large side.
+# Measured −0.41 to −0.47 on the frontend's output
+# (correlated_covariance.sandwich_covariance); the smaller magnitude is used so that the
+# merged covariance errs on the large side.
 SCAN_MATCH_LAG1_CORRELATION = -0.4
 
 

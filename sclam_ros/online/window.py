@@ -330,7 +330,8 @@ class OnlineCalibrator:
             inputs, self.params, self.calibration if calibration is None else calibration,
             poses=poses, nominal=self.nominal, extra_factors=extra,
             # Not corrected here: the marginalised history's information vector would have
-            # to carry the correction, each chunk checked as solver.settle_corrections does.
+            # to carry the correction, each chunk checked as
+            # variance_components.settle_corrections does.
             correct_dilution=False,
         )
 
