@@ -38,23 +38,21 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
     edges of a factor with `chained_errors` are correlated; and those correlations.
 
     H⁻¹ assumes every edge independent. Consecutive scan matches share a scan, whose own
-    registration error enters them with opposite signs, so their errors correlate
-    negatively and cancel where a parameter averages over many edges (the laser pose):
-    H⁻¹ overstates its σ (RMS err/σ 0.4-0.7 over 20 seeds on most simulated lasers). In
-    whitened units C has the identity on its diagonal and diag(ρ) between chained edges,
-    ρ per component pooled over the recording from the residuals, one number each, so it
-    is not noisy as the sandwich's per-edge products are. The residuals' correlation
-    understates the errors' (the poses absorb part of each): the errors' own at the
-    simulator's truth are −0.31 to −0.43 on the default and URG-like lasers, in the office
-    and among corridors (bench/error_structure.py), so the correction errs toward H⁻¹.
+    registration error enters them with opposite signs, so their errors correlate negatively
+    and cancel where a parameter averages over many edges (the laser pose): H⁻¹ overstates
+    its σ. In whitened units C has the identity on its diagonal and diag(ρ) between chained
+    edges, ρ per component pooled over the recording from the residuals, one number each, so
+    it is not noisy as the sandwich's per-edge products are. The residuals' correlation
+    understates the errors' (the poses absorb part of each; bench/error_structure.py
+    measures the errors' own at the simulator's truth), so the correction errs toward H⁻¹.
     Only cancellation is taken from it (ρ clipped to [−0.5, 0]: −0.5 is a scan's error
     alone, and C stays positive semidefinite); a positive correlation is the sandwich's to
     report. The other measurement edges (the odometry) enter with their noise scale per
-    component (component_scales) where `per_component`: in the sandwich H⁻¹ Jᵀ C J H⁻¹
-    their block of C is diag(scales), so that a part of the stated model too large for
-    these data (the sideways slip) does not widen the σ of what rests on it, while the
-    estimate keeps the variance components' weights. `influence`: Influence.of(problem,
-    values, blocks, lu) if already at hand.
+    component (component_scales) where `per_component`: in the sandwich H⁻¹ Jᵀ C J H⁻¹ their
+    block of C is diag(scales), so that a part of the stated model too large for these data
+    (the sideways slip) does not widen the σ of what rests on it, while the estimate keeps
+    the variance components' weights. `influence`: Influence.of(problem, values, blocks, lu)
+    if already at hand.
     """
     influence = influence or Influence.of(problem, values, blocks, lu)
     system, cov = influence.system, influence.marginal
@@ -87,16 +85,15 @@ def sandwich_covariance(problem: Problem, values: Values, blocks, lags: int = 1,
 
     The model covariance H⁻¹ is right only if every edge's noise is independent with the
     stated covariance. Scan matches are not: consecutive matches share a scan, so their
-    errors are correlated (measured lag-1 correlation ≈ −0.25 to −0.5), and H⁻¹
-    overstates the uncertainty of what averages over many edges. The sandwich estimator
-    H⁻¹ (Σ_t Σ_t' s_t s_t'ᵀ) H⁻¹, with s_t the summed scores J_eᵀ r_e of the measurement
-    edges ending at pose t, over pairs up to `lags` apart, measures the spread from the
-    residuals themselves. Pairwise scan matching makes the errors MA(1) (measured lag-1
-    correlation −0.41 to −0.47, lags ≥ 2 below 0.05), for which the truncated (uniform)
-    kernel at lag 1 is exact, where Newey-West's Bartlett weights would keep a third of
-    the variance that cancels. The truncated estimate need not be positive semidefinite:
-    negative eigenvalues are clipped to zero. `influence`: Influence.of(problem, values,
-    blocks, lu) if already at hand.
+    errors are correlated (negatively, at lag 1), and H⁻¹ overstates the uncertainty of what
+    averages over many edges. The sandwich estimator H⁻¹ (Σ_t Σ_t' s_t s_t'ᵀ) H⁻¹, with s_t
+    the summed scores J_eᵀ r_e of the measurement edges ending at pose t, over pairs up to
+    `lags` apart, measures the spread from the residuals themselves. Pairwise scan matching
+    makes the errors MA(1) (correlated at lag 1, not measurably beyond), for which the
+    truncated (uniform) kernel at lag 1 is exact, where Newey-West's Bartlett weights would
+    keep a third of the variance that cancels. The truncated estimate need not be positive
+    semidefinite: negative eigenvalues are clipped to zero. `influence`:
+    Influence.of(problem, values, blocks, lu) if already at hand.
     """
     influence = influence or Influence.of(problem, values, blocks, lu)
     system = influence.system

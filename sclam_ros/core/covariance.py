@@ -63,10 +63,9 @@ def absorbed_trace(rows, lu) -> float:
     """tr(J H⁻¹ Jᵀ) of whitened Jacobian rows J (sparse or dense), `lu` H's LinearSolver:
     the part of their expected χ² the variables absorb. Exact: Σ (JᵀJ)_ij (H⁻¹)_ij over
     JᵀJ's pattern, within H's (LinearSolver.inverse_at). Hutchinson's stochastic estimate
-    with 40 probes is within 1 % indoors but scattered from −326 to +703 against exact
-    values of 151-227 on an outdoor drive: there the poses along a street are a long
-    random walk of the odometry, H⁻¹ couples them all, and the probes' cross terms swamp
-    the trace."""
+    is not used: on an outdoor drive the poses along a street are a long random walk of
+    the odometry, H⁻¹ couples them all, and the probes' cross terms swamp the trace (even
+    its sign)."""
     rows = rows if sp.issparse(rows) else sp.csr_matrix(np.asarray(rows))
     gram = (rows.T @ rows).tocoo()
     return float(gram.data @ lu.inverse_at(gram.row, gram.col))

@@ -29,7 +29,7 @@ def _solve_damped(problem, hessian, gradient, damping):
 
 def _system_or_none(problem, values):
     """The linear system at `values`, or None where the model is not defined (a step so
-    long that a noise model turned singular, e.g. a wheel base through zero): such a step
+    long that a noise model turns singular, e.g. a wheel base through zero): such a step
     is simply rejected. Evaluating a candidate step by its whole linear system, not its
     cost alone, costs a little more for a rejected step and saves the re-linearisation of
     every accepted one."""
@@ -71,7 +71,7 @@ def levenberg_marquardt(
         accepted = False
         delta = damped_step(lam)
         # Even the model's own step gains less than the tolerance: at a minimum. Without
-        # this stop a solve started at its optimum (a warm start) raised λ to 1e10 in 15
+        # this stop a solve started at its optimum (a warm start) raises λ to 1e10 through
         # rejected steps, each a solve and a cost evaluation.
         at_minimum = delta is not None and (
             _predicted_decrease(hessian, gradient, delta) < relative_tolerance * cost)

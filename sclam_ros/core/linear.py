@@ -39,9 +39,9 @@ class LinearSolver:
         self._lu = None
         self._dense = None
         if not sp.issparse(hessian):
-            # Up to problem.DENSE_MAX_COLUMNS, one dense Cholesky of the whole H: the online
-            # window factors in ~0.1 ms, where building the banded split and its sparse
-            # slices cost ~1 ms of Python per factorisation.
+            # Up to problem.DENSE_MAX_COLUMNS, one dense Cholesky of the whole H: for the
+            # online window, building the banded split and its sparse slices costs more
+            # Python than the dense factorisation.
             self._dense = scipy.linalg.cho_factor(hessian)
             return
         hessian = hessian.tocsc()

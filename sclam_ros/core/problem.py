@@ -134,9 +134,9 @@ class Layout:
         return offset + np.arange(len(rows) * self.dims[name])
 
 
-# Up to this many columns the linear system is dense: built as sparse matrices, the online
-# window (~45-75 poses, 141-231 columns) spent ~3 ms of its ~10 ms solve in scipy.sparse's
-# constructors and conversions (cProfile), more than the dense BLAS work costs.
+# Up to this many columns the linear system is dense: for a system the size of the online
+# window (~45-75 poses, 141-231 columns), scipy.sparse's constructors and conversions cost
+# more than the dense BLAS work.
 DENSE_MAX_COLUMNS = 400
 
 
@@ -243,7 +243,7 @@ class Problem:
                             np.concatenate(data_all))
         if self.layout.size <= DENSE_MAX_COLUMNS:
             # bincount sums entries that two blocks put in the same place (np.add.at does
-            # too, at 0.7 ms a call for this size).
+            # too, more slowly).
             jacobian = np.bincount(rows * self.layout.size + cols, data,
                                    row0 * self.layout.size).reshape(row0, self.layout.size)
         else:

@@ -58,15 +58,12 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
         ratios, redundancy = _variance_ratios(problem, result.values)
     # A group still far from its fixed point when the rounds are used up is running away,
     # not settling. With an odometry model that misfits (1 Hz encoders), the scan matches'
-    # scale fell round after round (0.2, 0.08, 0.04, 0.03, 0.014, 0.006 on a simulated
-    # 10-minute drive, seed 3) while their true errors measure 0.11: the poses follow the
+    # scale falls round after round far below their true errors: the poses follow the
     # matches ever closer and the residuals left to them shrink with their scale. So is
-    # one that ran so far that it pins the poses and has lost the redundancy to measure
-    # its own noise (the same drive with the odometry edges of factors.motion_difference:
-    # laser scale 0.0056, no ratio left), or whose redundancy collapsed on the way (a
-    # synthetic street, test_solver: the odometry's fell from 24 % of its size to 2-4 %
-    # and its scale to 0.09-0.17 against a true 0.25). Such a group keeps its one-step
-    # estimate (0.43-0.47 on that street: on the safe side).
+    # one that runs so far that it pins the poses and loses the redundancy to measure its
+    # own noise (no ratio left), or whose redundancy collapses on the way (a synthetic
+    # street, test_solver: the odometry's scale then ends well below its true value).
+    # Such a group keeps its one-step estimate, which errs on the safe side.
     def is_running_away(name):
         if name in ratios:
             return not UNSETTLED_RATIO[0] <= ratios[name] <= UNSETTLED_RATIO[1]
@@ -127,9 +124,9 @@ def _variance_ratios(problem: Problem, values: Values) -> tuple:
         # redundancy is a small share of its size, its residuals are mostly what the
         # poses it pins leave over, and another group's misfit moves them as much as its
         # own noise does. Among bare corridors, where a short-range laser fixes little
-        # along them, the odometry keeps 6-15 % of its size and its scale settles at
-        # 0.24-0.46 against a true 0.25-0.29 (test_variance_components); held at the
-        # stated model (scale 1) its σ would be 1.6 times too large.
+        # along them, the odometry keeps 6-15 % of its size and its scale still settles
+        # near its true value (test_variance_components); held at the stated model
+        # (scale 1) its σ would be 1.6 times too large.
         dim = sum(len(f) * f.edge_dim for f in problem.factors if f.name == name)
         if name in measured and r >= max(3.0, MIN_REDUNDANCY_SHARE * dim):
             ratios[name] = float(chi2 / r)
@@ -144,8 +141,8 @@ def component_scales(influence: Influence, start: int, stop: int, d: int) -> np.
     Variance components give a factor one scale; the shape of its covariance is the stated
     model's. The odometry's sideways part has its own parameter (lateral_noise), and the
     simulator's robots slip sideways less than the default states: at the truth their
-    whitened sideways errors have a mean square of about a third of the factor's scale,
-    the others' about 1 (bench/error_structure.py). The model's σ then overstates what
+    whitened sideways errors have a fraction of the mean square of the other components
+    (bench/error_structure.py). The model's σ then overstates what
     rests on the sideways part: the laser yaw, taken from the direction the laser moves
     in while the odometry says the robot moves straight ahead. A component the other
     edges absorb (too little redundancy of its own) keeps the factor's scale."""
