@@ -38,7 +38,7 @@ def calibrate(args):
 
     from sclam_ros.core import graph
     from sclam_ros.core.params import SclamParams
-    from sclam_ros.core.solver import solve_with_variance_components
+    from sclam_ros.core.variance_components import solve_with_variance_components
 
     slip, seed, poses = args
     g = make_graph(n=poses, seed=1000 + seed, wheel_noise=slip)

@@ -2,8 +2,8 @@
 
 The reported σ is right if each edge type's errors have the covariance the graph states
 for them, times the one variance scale per edge type that the calibration estimates from
-its residuals (solver.solve_with_variance_components), with the lag-1 correlation of
-consecutive scan matches that the chain-correlated model adds. Here each edge's error is
+its residuals (variance_components.solve_with_variance_components), with the lag-1
+correlation of consecutive scan matches that the chain-correlated model adds. Here each edge's error is
 taken at the truth (the simulator's poses and calibration), whitened by the stated model
 and divided by that scale, per component (x, y, θ of the edge):
 
@@ -12,8 +12,8 @@ and divided by that scale, per component (x, y, θ of the edge):
   - lag-1 correlation between consecutive edges (the scan matches share a scan);
   - RMS err/σ per parameter of the chain-correlated covariance with one noise scale per
     edge type, with the odometry's scale per component from the residuals (as the
-    calibration computes it, solver.component_scales), and with what only the simulator
-    knows put in their place: the odometry's variance per component at the truth's mean
+    calibration computes it, variance_components.component_scales), and with what only the
+    simulator knows put in their place: the odometry's variance per component at the truth's mean
     square, then also the scan matches' variance and lag-1 correlation per component.
     Where these move RMS err/σ toward 1, the stated shape is what makes the σ
     conservative, not the estimate of one scale or one correlation.
@@ -58,7 +58,8 @@ def whitened_at_truth(result, bag, truth, name) -> np.ndarray:
 
 def run_one(job):
     row_name, seed, duration, workdir = job
-    from sclam_ros.core import solver
+    from sclam_ros.core.correlated_covariance import chain_correlated_covariance, chained_edges
+    from sclam_ros.core.covariance import Influence
     from sclam_ros.core.estimator import calibrate_keyframes
     from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
     from sclam_ros.io.recording import read_recording
@@ -72,23 +73,23 @@ def run_one(job):
     out = dict(row=row_name)
     for name in FACTORS:
         whitened, factor = whitened_at_truth(result, bag, truth, name)
-        t, u = solver.chained_edges(factor)
+        t, u = chained_edges(factor)
         square = np.mean(whitened**2, axis=0)
         out[f"{name} square"] = square
         out[f"{name} lag-1"] = np.mean(whitened[t] * whitened[u], axis=0) / square
     error = np.array([result.estimate[k] - truth[k] for k in CALIBRATION_KEYS])
     problem, blocks = result.problem, ["odometry", "laser"]
-    influence = solver.Influence.of(problem, problem.values, blocks)
-    one_scale, residual_rho = solver.chain_correlated_covariance(
+    influence = Influence.of(problem, problem.values, blocks)
+    one_scale, residual_rho = chain_correlated_covariance(
         problem, problem.values, blocks, influence=influence, per_component=False)
-    chain, _ = solver.chain_correlated_covariance(problem, problem.values, blocks, influence=influence)
+    chain, _ = chain_correlated_covariance(problem, problem.values, blocks, influence=influence)
     # H⁻¹ Jᵀ C J H⁻¹ with C's blocks changed from the model's (identity, and the residuals'
     # ρ between chained matches) to the truth's: rows are J H⁻¹ E per whitened row.
     rows = {name: influence.rows[start:stop].reshape(-1, 3, len(error))
             for name, start, stop in influence.system.row_ranges if name in FACTORS}
     odometry = np.einsum("tip,i,tiq->pq", rows["odometry"], out["odometry square"] - 1.0, rows["odometry"])
     laser_factor = next(f for f in problem.factors if f.name == "laser")
-    t, u = solver.chained_edges(laser_factor)
+    t, u = chained_edges(laser_factor)
     true_rho = np.clip(out["laser lag-1"], -0.5, 0.0)
     las = rows["laser"]
     laser = (np.einsum("tip,i,tiq->pq", las, out["laser square"] - 1.0, las)

@@ -38,8 +38,9 @@ from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.io.recording import read_recording
+from sclam_ros.core.covariance import marginal_covariance
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
-from sclam_ros.core.solver import marginal_covariance, solve_with_variance_components
+from sclam_ros.core.variance_components import solve_with_variance_components
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir  # noqa: E402

@@ -198,7 +198,11 @@ def sigma_sources(result) -> dict:
     """The σ of each covariance the reported one is made of (estimator.calibrate_keyframes):
     H⁻¹ (every edge independent), the chain-correlated model (consecutive scan matches'
     residual correlation), the sandwich (the residuals' own spread); and the reported σ."""
-    from sclam_ros.core.solver import Influence, chain_correlated_covariance, sandwich_covariance
+    from sclam_ros.core.correlated_covariance import (
+        chain_correlated_covariance,
+        sandwich_covariance,
+    )
+    from sclam_ros.core.covariance import Influence
 
     problem, blocks = result.problem, ["odometry", "laser"]
     influence = Influence.of(problem, problem.values, blocks)

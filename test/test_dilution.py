@@ -7,8 +7,10 @@ import pytest
 from synthetic import make_graph
 
 from sclam_ros.core import graph, mocap
+from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.params import SclamParams
-from sclam_ros.core.solver import Problem, Values, levenberg_marquardt, solve_with_variance_components
+from sclam_ros.core.problem import Problem, Values
+from sclam_ros.core.variance_components import solve_with_variance_components
 from sclam_ros.core import factors
 from sclam_ros.io.convert import optiodom_params, read_optiodom
 

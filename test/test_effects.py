@@ -8,7 +8,7 @@ from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor
 from sclam_ros.core.factors import LaserFactor, OdometryFactor
-from sclam_ros.core.solver import Values
+from sclam_ros.core.problem import Values
 
 rng = np.random.default_rng(7)
 N = 6
@@ -89,7 +89,7 @@ def test_zero_effects_reduce_to_base_factors(merged):
 
 def test_extend_problem_keeps_the_parts():
     from sclam_ros.diagnosis.effects.model import extend_problem
-    from sclam_ros.core.solver import Problem
+    from sclam_ros.core.problem import Problem
 
     d = data()
     effects = [LIBRARY["time_offset"](d)]

@@ -2,7 +2,7 @@ import numpy as np
 from numdiff import central_difference, check_factor_jacobians
 
 from sclam_ros.core import factors, kinematics, se2
-from sclam_ros.core.solver import Values
+from sclam_ros.core.problem import Values
 
 rng = np.random.default_rng(3)
 

@@ -130,7 +130,7 @@ def test_odometry_residual_is_whitened_by_the_motion_covariance():
     covariance is stated: at the true poses its whitened residuals of slipping turns on the
     spot have unit variance in every direction."""
     from sclam_ros.core import factors
-    from sclam_ros.core.solver import Values
+    from sclam_ros.core.problem import Values
 
     rng = np.random.default_rng(6)
     wheel_noise = 0.02

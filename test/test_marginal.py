@@ -9,7 +9,7 @@ from sclam_ros.core.marginal import (
     Gaussian,
     gaussian_of_prior,
 )
-from sclam_ros.core.solver import Values
+from sclam_ros.core.problem import Values
 
 TRUE = np.array([0.1, 0.101, 0.4, 0.2, -0.05, 0.1])
 

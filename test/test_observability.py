@@ -13,7 +13,7 @@ from sclam_ros.core import graph as graph_mod
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.observability import MIN_INFORMATION_GAIN, Observability
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
-from sclam_ros.core.solver import Values
+from sclam_ros.core.problem import Values
 from sclam_ros.io.recording import iter_outputs, read_recording
 from sclam_ros.online.window import OnlineCalibrator
 from sclam_ros.sim import simulate

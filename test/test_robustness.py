@@ -23,10 +23,10 @@ import pytest
 
 from sclam_ros.cli.main import main
 from sclam_ros.core import wiring
+from sclam_ros.core.covariance import remaining_step
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.inputs import Scan
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams, atomic_write_text
-from sclam_ros.core.solver import remaining_step
 from sclam_ros.frontend import point_to_line
 from sclam_ros.frontend.scan_matching import ScanMatcher
 from sclam_ros.io import bag

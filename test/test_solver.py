@@ -4,22 +4,18 @@ import scipy.sparse as sp
 from synthetic import make_graph
 
 from sclam_ros.core import factors, kinematics
-from sclam_ros.core.graph import GraphInputs, initial_poses
-from sclam_ros.core.solver import (
-    CauchyKernel,
+from sclam_ros.core.correlated_covariance import chain_correlated_covariance, sandwich_covariance
+from sclam_ros.core.covariance import (
     Influence,
-    chain_correlated_covariance,
-    component_scales,
-    LinearSolver,
-    Problem,
-    Values,
     factorize_information,
-    levenberg_marquardt,
     marginal_covariance,
     redundancy_by_factor,
-    sandwich_covariance,
-    solve_with_variance_components,
 )
+from sclam_ros.core.graph import GraphInputs, initial_poses
+from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
+from sclam_ros.core.linear import LinearSolver
+from sclam_ros.core.problem import CauchyKernel, Problem, Values
+from sclam_ros.core.variance_components import component_scales, solve_with_variance_components
 
 NOMINAL_K = np.array([0.125, 0.125, 0.56])
 NOMINAL_L = np.array([0.22, 0.0, 0.0])
@@ -273,15 +269,15 @@ def test_dense_and_sparse_linear_systems_agree(monkeypatch):
     """Small problems (the online window) are linearised into a dense Jacobian and solved
     by one dense Cholesky; large ones stay sparse (banded Cholesky + Schur). Both are the
     same mathematics: the same Jacobian, optimum and covariance to rounding."""
-    from sclam_ros.core import solver
+    from sclam_ros.core import problem as problem_module
 
     g = make_graph(n=60, seed=5)
     problem = build_problem(g)
-    assert problem.layout.size <= solver.DENSE_MAX_COLUMNS
+    assert problem.layout.size <= problem_module.DENSE_MAX_COLUMNS
     dense_system = problem.linear_system(problem.values)
     dense = levenberg_marquardt(problem)
     dense_cov = marginal_covariance(problem, dense.values, ["odometry", "laser"])
-    monkeypatch.setattr(solver, "DENSE_MAX_COLUMNS", 0)
+    monkeypatch.setattr(problem_module, "DENSE_MAX_COLUMNS", 0)
     sparse_system = problem.linear_system(problem.values)
     assert isinstance(dense_system.jacobian, np.ndarray)
     assert not isinstance(sparse_system.jacobian, np.ndarray)

@@ -6,13 +6,14 @@ With 1 Hz encoders the odometry model misfits (the path between samples), and on
 their true errors measure ~0.1 of the stated variance: the poses followed the matches ever
 closer and the residuals left to them shrank with their scale, so the laser y came out
 4.8σ off. A group that has not settled when the rounds are used up keeps its one-step
-estimate (solver.solve_with_variance_components).
+estimate (variance_components.solve_with_variance_components).
 """
 import numpy as np
 
+from sclam_ros.core.covariance import Influence
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
-from sclam_ros.core.solver import Influence, component_scales
+from sclam_ros.core.variance_components import component_scales
 from sclam_ros.io.recording import read_ground_truth, read_recording
 from sclam_ros.sim import simulate
 
@@ -73,8 +74,8 @@ def test_the_odometry_noise_scale_per_component_follows_its_true_errors(tmp_path
     """The default parameters state more sideways slip than the simulated robot has: at the
     truth the odometry's whitened sideways errors have a fraction of the mean square of its
     other components, which one variance scale for the edge type cannot show. The scale
-    per component that the reported covariance uses (solver.component_scales) shows it;
-    the laser yaw's σ rests on the sideways part."""
+    per component that the reported covariance uses (variance_components.component_scales)
+    shows it; the laser yaw's σ rests on the sideways part."""
     bag = tmp_path / "bag"
     truth = simulate(bag, duration=120.0, seed=1, scene="corridors")
     params = SclamParams.from_yaml(bag / "params.yaml")

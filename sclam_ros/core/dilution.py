@@ -29,8 +29,8 @@ score). Four choices, each measured:
   inflating a covariance, which is why letting the information follow k was rejected
   (factors.OdometryFactor).
 - The noise level from the data. The term is tr(Ω/scale · C_actual), with the wheel noise
-  C_actual = scale · C_u when the odometry's variance scale (solver.solve_with_variance_
-  components) is right; then the scale cancels. The scale is estimated from all three
+  C_actual = scale · C_u when the odometry's variance scale
+  (variance_components.solve_with_variance_components) is right; then the scale cancels. The scale is estimated from all three
   residual rows and can stop short of a small noise (a clamped round: the simulator without
   slip left it at 0.2 where its rotation residuals were 10⁻⁴ of the model, and the
   correction moved b by −0.16 %). So the rotation rows are asked too: their own variance
@@ -42,8 +42,8 @@ from __future__ import annotations
 import numpy as np
 
 from sclam_ros.core import kinematics
+from sclam_ros.core.covariance import absorbed_trace
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import absorbed_trace
 
 
 # The correction is first order in noise²/signal²: applied where it moves no calibration
@@ -58,8 +58,8 @@ MAX_RELATIVE_SHIFT = 0.01
 class WheelNoiseCorrection:
     """−Σᵢ wᵢ ∂Dᵢ/∂k · (k − k₀) over the "odometry" block, wᵢ the unabsorbed share.
 
-    `active` is cleared (solver.settle_corrections) where the correction would move a
-    parameter by more than MAX_RELATIVE_SHIFT; `shift` holds the move it makes or would
+    `active` is cleared (variance_components.settle_corrections) where the correction would
+    move a parameter by more than MAX_RELATIVE_SHIFT; `shift` holds the move it makes or would
     make (m), so that a result can say how much dilution it left in."""
 
     block = "odometry"
@@ -85,7 +85,7 @@ class WheelNoiseCorrection:
         """`level` from the odometry edges' rotation rows of the linear system at the
         solution (`system`, its factorisation `lu`): their whitened χ² over their
         redundancy (the rows less the share the poses absorb, tr(J H⁻¹ Jᵀ) over those
-        rows, solver.absorbed_trace), at most 1."""
+        rows, covariance.absorbed_trace), at most 1."""
         ranges = [(start, stop) for name, start, stop in system.row_ranges if name == "odometry"]
         if len(ranges) != 1 or (ranges[0][1] - ranges[0][0]) != 3 * len(self.edge_slopes):
             return

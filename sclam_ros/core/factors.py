@@ -5,7 +5,7 @@ with a few vectorised numpy operations instead of a Python loop over thousands o
 The solver is generic: it only sees `Linearization`s (residuals, whitening, and Jacobian
 blocks with the variable rows they touch) and never special-cases a factor.
 
-Variables live in named blocks (see solver.Values): "poses" (n, 3), "odometry" (1, 3) =
+Variables live in named blocks (see problem.Values): "poses" (n, 3), "odometry" (1, 3) =
 (r_l, r_r, b), "laser" (1, 3) = (l_x, l_y, l_yaw); model extensions add their own blocks.
 """
 from __future__ import annotations
@@ -52,7 +52,8 @@ class Factor:
     # measurements, false for priors (their σ is a statement, not a measurement).
     measurement = True
     # Whether consecutive edges (one ending at the pose the next starts from) share a
-    # measurement, so that their errors correlate (solver.chain_correlated_covariance).
+    # measurement, so that their errors correlate
+    # (correlated_covariance.chain_correlated_covariance).
     chained_errors = False
 
     def __len__(self) -> int:

@@ -15,7 +15,7 @@ from scipy.sparse.csgraph import connected_components
 from sclam_ros.core import dilution, factors, kinematics, se2
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import CauchyKernel, Problem, Values
+from sclam_ros.core.problem import CauchyKernel, Problem, Values
 
 # Weak priors on the calibration at its nominal value. They carry no information a real
 # run would notice (σ far beyond any plausible mounting error), but they keep the system
@@ -200,8 +200,9 @@ def merged_keyframe(segment, index):
 
 # Lag-1 correlation of consecutive scan-match errors: each scan's own error enters the
 # match before it and the match after it with opposite signs (−0.5 if that were all).
-# Measured −0.41 to −0.47 on the frontend's output (solver.sandwich_covariance); the
-# smaller magnitude is used so that the merged covariance errs on the large side.
+# Measured −0.41 to −0.47 on the frontend's output
+# (correlated_covariance.sandwich_covariance); the smaller magnitude is used so that the
+# merged covariance errs on the large side.
 SCAN_MATCH_LAG1_CORRELATION = -0.4
 
 

@@ -22,8 +22,9 @@ import numpy as np
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import dilution, kinematics, se2
+from sclam_ros.core.covariance import marginal_covariance
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
-from sclam_ros.core.solver import marginal_covariance, solve_with_variance_components
+from sclam_ros.core.variance_components import solve_with_variance_components
 
 # Noise shape of one mocap relative motion (scale estimated by variance components).
 MOCAP_SIGMA = np.array([0.001, 0.001, 0.005])  # m, m, rad

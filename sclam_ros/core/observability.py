@@ -30,9 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sclam_ros.core.covariance import marginal_covariance
+from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import Problem, levenberg_marquardt, marginal_covariance
+from sclam_ros.core.problem import Problem
 
 # An undetermined direction: the data adds less than this many times the prior's information
 # along it (its σ would shrink less than tenfold). Measured on simulated 60 s PowerBot drives

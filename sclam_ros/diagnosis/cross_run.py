@@ -24,7 +24,7 @@ from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import solve_with_variance_components
+from sclam_ros.core.variance_components import solve_with_variance_components
 
 CROSS_RUN_METRIC = (
     "error_cross_run: the same per-edge NLL over every paired edge of another recording of "

@@ -26,9 +26,11 @@ from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor, extend_problem
+from sclam_ros.core.covariance import marginal_covariance
 from sclam_ros.core.estimator import calibrate_keyframes, residual_rms
+from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import levenberg_marquardt, marginal_covariance, solve_with_variance_components
+from sclam_ros.core.variance_components import solve_with_variance_components
 from sclam_ros.diagnosis import identifiability
 from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise
 from sclam_ros.diagnosis.regressors import regressors

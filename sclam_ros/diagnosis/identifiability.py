@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sclam_ros.core.solver import marginal_covariance
+from sclam_ros.core.covariance import marginal_covariance
 
 SIGMA_RATIO = 0.5
 MAX_CORRELATION = 0.9

@@ -119,8 +119,8 @@ class NoiseModel:
       - no dependence on the point count between 250 and 400 registered points;
       - lag-1 correlation of consecutive errors −0.41 to −0.43 in x, y and θ: part of the error
         belongs to each scan's pose in the local map and cancels between consecutive z
-        (for pure per-pose errors it would be −0.5). solver.chain_correlated_covariance
-        accounts for it in the reported σ.
+        (for pure per-pose errors it would be −0.5).
+        correlated_covariance.chain_correlated_covariance accounts for it in the reported σ.
 
     The least-squares fit of |e| gives (1.12 mm, 0.23 mm/m, 1.24 mm/rad; 0.23 mrad,
     0.34 mrad/m, 0.38 mrad/rad) with χ²/DoF 1.09 / 1.01 / 1.07; under the defaults below

@@ -30,8 +30,9 @@ import numpy as np
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import kinematics, se2
+from sclam_ros.core.covariance import marginal_covariance
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
-from sclam_ros.core.solver import marginal_covariance, solve_with_variance_components
+from sclam_ros.core.variance_components import solve_with_variance_components
 
 MOUNTINGS = ("lstraight", "l90", "lmov")
 

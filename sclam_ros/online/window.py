@@ -43,11 +43,12 @@ import numpy as np
 from sclam_ros.core import graph as graph_mod, kinematics, se2
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.frontend.decimation import ONLINE_MATCH_PERIOD
+from sclam_ros.core.covariance import factorize_information, marginal_covariance
 from sclam_ros.core.inputs import Rejections
+from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.marginal import RADII, CalibrationPriorFactor, Gaussian, gaussian_of_prior
 from sclam_ros.core.observability import Observability, settle_poses
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.core.solver import factorize_information, levenberg_marquardt, marginal_covariance
 from sclam_ros.online.change import (ChangePoint, change_point, change_weight, faded_sum,
                                      radii_covariance_with_change)
 
@@ -329,7 +330,8 @@ class OnlineCalibrator:
             inputs, self.params, self.calibration if calibration is None else calibration,
             poses=poses, nominal=self.nominal, extra_factors=extra,
             # Not corrected here: the marginalised history's information vector would have
-            # to carry the correction, each chunk checked as solver.settle_corrections does.
+            # to carry the correction, each chunk checked as
+            # variance_components.settle_corrections does.
             correct_dilution=False,
         )
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from sclam_ros.core import factors, kinematics, se2
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.core.solver import Problem, Values
+from sclam_ros.core.problem import Problem, Values
 
 
 def _effect_params(values, effect):
