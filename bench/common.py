@@ -2,15 +2,12 @@
 from __future__ import annotations
 
 import atexit
-import contextlib
 import os
 import resource
 import shutil
 import tempfile
 import time
 from pathlib import Path
-
-import numpy as np
 
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.io.recording import read_recording
@@ -52,46 +49,6 @@ def simulate_and_calibrate(robot, duration, seed, true_overrides=None, nominal_o
     recording = read_recording(out, params)
     result = calibrate_keyframes(recording.keyframes, params, recording.rejections)
     return truth, result, time.perf_counter() - start, out
-
-
-@contextlib.contextmanager
-def observed_refinements():
-    """Within it, every refinement the front end makes is recorded, not changed: yields the
-    list that point_to_line._confirmed's calls are appended to, each (reference scan, the
-    new scan's points, KISS-ICP's z, its answer (refined z, covariance, reason or None))."""
-    from sclam_ros.frontend import point_to_line
-
-    calls = []
-    confirmed = point_to_line._confirmed
-
-    def recording_confirmed(reference, points, z_icp):
-        out = confirmed(reference, points, z_icp)
-        calls.append((reference, np.array(points), np.array(z_icp), out))
-        return out
-
-    point_to_line._confirmed = recording_confirmed
-    try:
-        yield calls
-    finally:
-        point_to_line._confirmed = confirmed
-
-
-# The simulated PowerBot's laser mount on base_link (x, y m, yaw rad).
-POWERBOT_LASER_MOUNT = np.array([0.2258, 0.0026, 0.0017])
-
-
-def powerbot_route(world, duration, seed):
-    """The default drive of a simulated PowerBot through `world` (sim Trajectory), as
-    `sclam simulate` drives it: for benches that ray cast their own scans along it."""
-    from sclam_ros.sim.motion import TrueKinematics
-    from sclam_ros.sim.record import CONTROL_RATE
-    from sclam_ros.sim.robots import get_preset, true_calibration
-    from sclam_ros.sim.trajectory import simulate_trajectory
-
-    preset = get_preset("powerbot")
-    truth = true_calibration(preset, None)
-    kinematics = TrueKinematics(truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"])
-    return simulate_trajectory(world, kinematics, duration, seed, preset.footprint_radius, CONTROL_RATE)
 
 
 def errors(truth, result):

@@ -1,6 +1,6 @@
 """Never crash, never silently wrong (issue 13): the fuzz matrix.
 
-Every case of sclam_ros/sim/fuzz.py (bad scans, wrong topics, unusable parameters files,
+Every case of test/fuzz_cases.py (bad scans, wrong topics, unusable parameters files,
 corrupt storage, miswired encoders, foreign clocks, degenerate motion, ...) is made from a
 short simulated recording and run through `sclam calibrate` and `sclam calibrate --track`
 as subprocesses. Per case: what it declares it must give, what each run gave (traceback,
@@ -18,10 +18,10 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fuzz_cases as fuzz  # noqa: E402
 from common import scratch_dir, table  # noqa: E402
-
-from sclam_ros.sim import fuzz  # noqa: E402
 
 
 def _source(args):

@@ -30,8 +30,8 @@ Run: .venv/bin/python bench/sensor_matrix.py [--seeds 10] [--duration 120] [--jo
      [--factors urg|low-cost: that row with one factor at a time set back to the default's]
      [--true-nominal: the true calibration as the nominal one, so the odometry guess the
       scan matcher starts from is right; a bias that remains is not the guess's]
-     [--outdoor-variant "without the trunks"|...: the outdoor scene's objects changed as in
-      bench/outdoor_match_scale.py, one factor at a time]
+     [--outdoor-variant "without the trunks"|...: the outdoor scene's objects changed one
+      factor at a time (OUTDOOR_VARIANTS)]
      [--mirrored: the scene and the robot reflected left for right (its wheel radii
       swapped, its laser's y and yaw negated): a bias that belongs to the drive's geometry
       changes sign, one that belongs to the processing does not]
@@ -51,7 +51,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir, table  # noqa: E402
-from outdoor_match_scale import VARIANTS as OUTDOOR_VARIANTS, scene_variant  # noqa: E402
 
 DEG = math.pi / 180.0
 # name: simulate() keywords. The first row is the laser the noise model was measured on.
@@ -264,6 +263,32 @@ def _standard_error(samples):
     return samples.std(axis=0, ddof=1) / math.sqrt(len(samples))
 
 
+OUTDOOR_VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "trunks as square boxes",
+                    "without the trunks", "without the parked cars")
+
+
+def scene_variant(variant):
+    """Replace the outdoor world's object builders for this process's run (and the processes
+    it forks), as OUTDOOR_VARIANTS names them: the trunks rounder (32-gons), as square boxes
+    of the same width, or gone, or the parked cars gone (the poles, 0.15 m boxes, and the
+    façade stay); returns a function that puts them back."""
+    from sclam_ros.sim import world
+
+    octagon, box = world._octagon, world._box
+    if variant == OUTDOOR_VARIANTS[1]:
+        def round_object(cx, cy, radius):
+            angles = np.linspace(0.0, 2.0 * np.pi, 33)
+            return world._polyline(*[(cx + radius * np.cos(a), cy + radius * np.sin(a)) for a in angles])
+        world._octagon = round_object
+    elif variant == OUTDOOR_VARIANTS[2]:
+        world._octagon = lambda cx, cy, radius: box(cx, cy, 2.0 * radius, 2.0 * radius)
+    elif variant == OUTDOOR_VARIANTS[3]:
+        world._octagon = lambda cx, cy, radius: []
+    elif variant == OUTDOOR_VARIANTS[4]:
+        world._box = lambda cx, cy, w, h: [] if w > 1.0 else box(cx, cy, w, h)
+    return lambda: (setattr(world, "_octagon", octagon), setattr(world, "_box", box))
+
+
 def mirrored_row(row) -> dict:
     """`row` (simulate keywords) with its scene and its robot mirrored left for right."""
     from sclam_ros.sim.robots import get_preset
@@ -292,7 +317,7 @@ def main():
                     help="the scene and the robot reflected left for right (see above)")
     ap.add_argument("--outdoor-variant", choices=OUTDOOR_VARIANTS,
                     help="the outdoor scene with its trunks reshaped or removed "
-                         "(bench/outdoor_match_scale.py); the processes inherit it")
+                         "(scene_variant); the processes inherit it")
     args = ap.parse_args()
     if args.outdoor_variant:
         scene_variant(args.outdoor_variant)

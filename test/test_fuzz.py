@@ -1,14 +1,13 @@
 """The fast subset of the fuzz matrix (bench/fuzz.py has all of it): each run is `sclam
 calibrate` or `sclam calibrate --track` in a subprocess, as a user runs it, on a bad
-recording made by sclam_ros/sim/fuzz.py, and must give what its case declares: the error
+recording made by test/fuzz_cases.py, and must give what its case declares: the error
 named, the problem warned about with a right estimate, or a clean right estimate. Never a
 traceback, never a NaN, never silently wrong."""
 import re
 from concurrent.futures import ProcessPoolExecutor
 
+import fuzz_cases as fuzz
 import pytest
-
-from sclam_ros.sim import fuzz
 
 # Shorter than the bench's recordings: the subset must stay within about a minute.
 DURATION = 25.0

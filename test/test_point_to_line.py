@@ -360,7 +360,7 @@ def test_anchors_sit_on_their_walls_under_range_proportional_noise():
     """A noisy laser's residual origins (anchors, where each return's beam meets its
     segment's line) sit on the simulator's walls: on average within 0.2 mm at 2-4 m (two
     120 s routes of the office, a 720-beam laser with 2 cm + 1 % of range noise and 10 %
-    dropouts; bench/reference_bias.py). A least-squares line through the returns leans
+    dropouts; docs/decisions/point_to_line.md). A least-squares line through the returns leans
     toward the beams, and origins chosen by the returns' own noise sat +1.1 mm beyond."""
     from sclam_ros.core import se2
     from sclam_ros.sim.motion import TrueKinematics

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fuzz_cases import spray_mcap
 
 from sclam_ros.cli.main import main
 from sclam_ros.core import wiring
@@ -33,7 +34,6 @@ from sclam_ros.io import bag
 from sclam_ros.io.messages import stamp_to_sec
 from sclam_ros.io.recording import read_recording
 from sclam_ros.sim import simulate
-from sclam_ros.sim.fuzz import spray_mcap
 
 SCAN = "sensor_msgs/msg/LaserScan"
 JOINT_STATE = "sensor_msgs/msg/JointState"

@@ -279,7 +279,7 @@ def corridors_world() -> World:
 
 
 # Corridor bands of the scenes that have them, (x range, y range, axis: 0 along world x,
-# 1 along y): where a match is "along a corridor" (bench/match_scale_by_place.py).
+# 1 along y): where a match is "along a corridor" (docs/decisions/match_scale.md).
 CORRIDORS = {
     "office": [((0.0, 22.0), (6.5, 9.0), 0)],
     "corridors": [((5.0, 23.0), (1.3, 3.7), 0), ((5.0, 23.0), (14.3, 16.7), 0),
