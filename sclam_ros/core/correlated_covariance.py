@@ -43,8 +43,8 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
     its σ. In whitened units C has the identity on its diagonal and diag(ρ) between chained
     edges, ρ per component pooled over the recording from the residuals, one number each, so
     it is not noisy as the sandwich's per-edge products are. The residuals' correlation
-    understates the errors' (the poses absorb part of each; bench/error_structure.py
-    measures the errors' own at the simulator's truth), so the correction errs toward H⁻¹.
+    understates the errors' (the poses absorb part of each; docs/decisions/error_structure.md
+    records the errors' own at the simulator's truth), so the correction errs toward H⁻¹.
     Only cancellation is taken from it (ρ clipped to [−0.5, 0]: −0.5 is a scan's error
     alone, and C stays positive semidefinite); a positive correlation is the sandwich's to
     report. The other measurement edges (the odometry) enter with their noise scale per

@@ -142,7 +142,7 @@ def component_scales(influence: Influence, start: int, stop: int, d: int) -> np.
     model's. The odometry's sideways part has its own parameter (lateral_noise), and the
     simulator's robots slip sideways less than the default states: at the truth their
     whitened sideways errors have a fraction of the mean square of the other components
-    (bench/error_structure.py). The model's σ then overstates what
+    (docs/decisions/error_structure.md). The model's σ then overstates what
     rests on the sideways part: the laser yaw, taken from the direction the laser moves
     in while the odometry says the robot moves straight ahead. A component the other
     edges absorb (too little redundancy of its own) keeps the factor's scale."""
