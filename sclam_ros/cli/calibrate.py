@@ -167,20 +167,22 @@ def _run_track(args, params, truth) -> int:
 
 
 def _explain_unobserved(observable, frontend=None) -> None:
-    """Why the flagged parameters kept their nominal value: too few scan matches confirmed
-    (the wheels have nothing to be compared with), else the motion."""
+    """Why the flagged parameters kept their nominal value. The decision is the information
+    rule's (core/observability.py): the data adds too little information on them. Few
+    confirmed scan matches is said beside it where it holds, as a likely contributor, not
+    as the decision."""
     if all(observable.values()):
         return
+    print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording carries "
+          "too little information on them.")
     refined = frontend.refined_matcher if frontend is not None else None
     if refined is not None and refined.mostly_unconfirmed:
-        print(f"Parameters marked NOT OBSERVABLE kept their nominal value: only "
-              f"{refined.confirmed} of {refined.matches} scan matches could be "
-              "confirmed (few straight surfaces in view for this laser's range noise), too "
-              "few to compare the odometry with.")
+        print(f"Only {refined.confirmed} of {refined.matches} scan matches could be confirmed "
+              "(few straight surfaces in view for this laser's range noise), which leaves the "
+              "odometry little to be compared with.")
     else:
-        print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording lacks "
-              "the motion that excites them (turns in both directions for the wheel base and "
-              "the laser offset).")
+        print("What excites them: turns in both directions (the wheel base and the laser "
+              "offset), straights (the radii' common scale).")
 
 
 def _register(args, params, progress):
