@@ -58,7 +58,7 @@ def run_one(job):
     name, seed, workdir = job
     from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
     from sclam_ros.io.recording import iter_outputs
-    from sclam_ros.online.window import OnlineCalibrator
+    from sclam_ros.online.calibrator import OnlineCalibrator
     from sclam_ros.sim import simulate
     from sclam_ros.sim.effects import make_effect
 

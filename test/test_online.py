@@ -1,4 +1,4 @@
-"""The online calibrator (window.py) offline: `sclam calibrate --track`, the incremental
+"""The online calibrator (online/calibrator.py) offline: `sclam calibrate --track`, the incremental
 keyframe merge, and a load change tracked by the sliding window."""
 from __future__ import annotations
 
@@ -16,7 +16,9 @@ from sclam_ros.io.recording import iter_keyframes
 from sclam_ros.core.marginal import NOT_RADII, RADII, Gaussian
 from sclam_ros.online.change import (change_point, change_weight, fade_radii,
                                      radii_covariance_with_change)
-from sclam_ros.online.window import CHANGE_STATISTIC, POSE_WINDOW_DISTANCE, OnlineCalibrator
+from sclam_ros.online.calibrator import OnlineCalibrator
+from sclam_ros.online.change_detector import CHANGE_STATISTIC
+from sclam_ros.online.pose_window import POSE_WINDOW_DISTANCE
 
 DURATION = 200.0
 CHANGE_AT = 100.0  # s after the start
@@ -70,7 +72,7 @@ def test_tracked_radii_follow_a_load_change(load_change):
 
 
 def test_radius_change_detected_after_the_change_only(load_change):
-    """The radii window is cut (window.py: change test) once, after the change and within a
+    """The radii window is cut (change_detector.py) once, after the change and within a
     minute of it; before it the window keeps growing past the pose window."""
     bag, truth, _ = load_change
     params = SclamParams.from_yaml(bag / "params.yaml")

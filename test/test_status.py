@@ -13,7 +13,7 @@ from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
 from sclam_ros.io.recording import iter_outputs
 from sclam_ros.online.status import OK, WARN, diagnostic_status, wheel_parameters_data
-from sclam_ros.online.window import OnlineCalibrator
+from sclam_ros.online.calibrator import OnlineCalibrator
 from sclam_ros.sim import simulate
 
 RECEIVED = {"joint_states": 0, "scan": 0}
@@ -90,7 +90,7 @@ def test_a_suspected_radius_change_is_a_warning(tracked):
     import dataclasses
 
     from sclam_ros.online.change import change_weight
-    from sclam_ros.online.window import CHANGE_STATISTIC
+    from sclam_ros.online.change_detector import CHANGE_STATISTIC
 
     params, calibrator, _ = tracked
     quiet = calibrator.status()

@@ -45,7 +45,7 @@ STOP_TIMEOUT_S = 5.0
 def _serve(params, inbox, outbox) -> None:
     """The child process: run the calibrator on what arrives, report what it learns."""
     from sclam_ros.online.solver_thread import SolverThread
-    from sclam_ros.online.window import OnlineCalibrator
+    from sclam_ros.online.calibrator import OnlineCalibrator
 
     rejections = Rejections()
     calibrator = OnlineCalibrator(params, rejections, inline_solve=False)
@@ -121,7 +121,7 @@ class CalibratorProcess:
 
     def __init__(self, params, on_estimate: Optional[Callable] = None,
                  on_error: Optional[Callable[[str], None]] = None):
-        from sclam_ros.online.window import OnlineCalibrator
+        from sclam_ros.online.calibrator import OnlineCalibrator
 
         self.params = params
         self.on_estimate = on_estimate or (lambda estimate: None)

@@ -20,7 +20,9 @@ from __future__ import annotations
 import threading
 from typing import Callable, Optional
 
-from sclam_ros.online.window import Estimate, OnlineCalibrator, run_solve
+from sclam_ros.online.calibrator import OnlineCalibrator
+from sclam_ros.online.estimate import Estimate
+from sclam_ros.online.window_solve import run_solve
 
 
 class SolverThread:

@@ -12,7 +12,7 @@ import math
 
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS
 from sclam_ros.online.change import change_weight
-from sclam_ros.online.window import CHANGE_STATISTIC
+from sclam_ros.online.change_detector import CHANGE_STATISTIC
 
 WHEEL_PARAMETER_COLUMNS = ODOMETRY_KEYS
 WHEEL_PARAMETER_ROWS = ("value", "sigma", "observable")
@@ -32,7 +32,7 @@ def wheel_parameters_data(estimate) -> list:
 
 
 def diagnostic_status(status, params, received, rejections):
-    """(level, message, values) of the node's diagnostics from a window.CalibratorStatus:
+    """(level, message, values) of the node's diagnostics from an estimate.CalibratorStatus:
     level is OK or WARN, values an ordered {key: value} of what a person checks on a running
     calibration. A value that does not exist yet (no estimate, no change test) is absent,
     never "nan" or "n/a"."""
