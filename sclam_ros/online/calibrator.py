@@ -31,6 +31,7 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.frontend.decimation import ONLINE_MATCH_PERIOD
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.online.change_detector import ChangeDetector
+from sclam_ros.online.config import OnlineConfig
 from sclam_ros.online.estimate import CalibratorStatus, Estimate
 from sclam_ros.online.history import MarginalisedHistory
 from sclam_ros.online.marginalise import marginalise
@@ -38,16 +39,14 @@ from sclam_ros.online.pose_window import PoseWindow
 from sclam_ros.online.window_graph import window_problem
 from sclam_ros.online.window_solve import SolveJob, SolveOutcome, run_solve
 
-# Fewer keyframes than this in the window: no solve (too little to say anything).
-MIN_WINDOW_KEYFRAMES = 6
-
 
 class OnlineCalibrator:
     """Feeds on encoder samples and scans in arrival order; keeps an up-to-date Estimate."""
 
     def __init__(self, params, rejections: Optional[Rejections] = None, solve_every: int = 2,
-                 inline_solve: bool = True):
+                 inline_solve: bool = True, config: OnlineConfig = OnlineConfig()):
         self.params = params
+        self.config = config
         self.inline_solve = inline_solve
         self.rejections = rejections if rejections is not None else Rejections()
         self.solve_every = solve_every
@@ -61,7 +60,7 @@ class OnlineCalibrator:
     def reset_window(self) -> None:
         """Forget the pose window, and what all marginalised data said about the
         radii (they restart from their current value); what it said about (b, l) is kept."""
-        self.window = PoseWindow()
+        self.window = PoseWindow(self.config.window)
         self.forget_radii()  # the chunks' radii go, their (b, l) stays
         self._since_solve = 0
         self.solve_pending = False  # a solve is due (inline_solve False: the caller runs it)
@@ -72,10 +71,10 @@ class OnlineCalibrator:
         self.calibration = self.nominal.copy()
         self.frontend.calibration = self.calibration.copy()
         self.history = MarginalisedHistory(self.params)
-        self.change_detector = ChangeDetector()
+        self.change_detector = ChangeDetector(self.config.change)
         self.estimate: Optional[Estimate] = None
         self.solves = 0
-        self.unconverged_in_a_row = 0  # solves that hit the iteration cap, since the last that did not
+        self.unconverged_in_a_row = 0  # solves at the iteration cap since the last below it
         self.reset_window()
 
     def set_window_distance(self, metres: float) -> None:
@@ -120,7 +119,8 @@ class OnlineCalibrator:
                 self.window.append(kf, self.calibration)
                 self._trim()
                 self._since_solve += 1
-                if self._since_solve >= self.solve_every and len(self.window) >= MIN_WINDOW_KEYFRAMES:
+                if (self._since_solve >= self.solve_every
+                        and len(self.window) >= self.config.solve.min_keyframes):
                     if self.inline_solve:
                         updated = self.solve() or updated
                     else:
@@ -196,7 +196,7 @@ class OnlineCalibrator:
     # --- estimation -----------------------------------------------------------------------
     def solve(self) -> Optional[Estimate]:
         """Solve the window now, on this thread."""
-        return self.apply_solve(run_solve(self.prepare_solve()))
+        return self.apply_solve(run_solve(self.prepare_solve(), self.config.solve))
 
     # A solve in three steps, so that the node can run the expensive middle one on a
     # thread of its own while encoder and scan callbacks go on: prepare_solve and
@@ -205,7 +205,7 @@ class OnlineCalibrator:
     def prepare_solve(self) -> Optional[SolveJob]:
         self._since_solve = 0
         window = list(self.window)
-        if len(window) < MIN_WINDOW_KEYFRAMES:  # a reset came after the request
+        if len(window) < self.config.solve.min_keyframes:  # a reset came after the request
             return None
         inputs, problem = window_problem(window, self.params, self.calibration, self.nominal,
                                          prior=self.prior(),
@@ -217,7 +217,7 @@ class OnlineCalibrator:
         chunks = list(self.history.chunks)
         return SolveJob(self.generation, [kf.index for kf in window], float(inputs.stamps[-1]),
                         problem, len(window), self.window_length(), prior,
-                        change_testable=ChangeDetector.testable(self.history_length()),
+                        change_testable=self.change_detector.testable(self.history_length()),
                         nominal=self.nominal.copy(), reference=self.history.older + weak,
                         history=[c.gaussian for c in chunks],
                         history_numbers=[c.number for c in chunks],

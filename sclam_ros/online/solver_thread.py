@@ -73,7 +73,7 @@ class SolverThread:
             job = self.calibrator.prepare_solve()
         if job is None:
             return None
-        outcome = run_solve(job)
+        outcome = run_solve(job, self.calibrator.config.solve)
         with self.lock:
             return self.calibrator.apply_solve(outcome)
 

@@ -18,18 +18,7 @@ from sclam_ros.core.covariance import factorize_information, marginal_covariance
 from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.marginal import Gaussian
 from sclam_ros.core.observability import Observability
-
-# A window solve stops when an LM step lowers the cost by less than this fraction, or after
-# MAX_ITERATIONS steps: with a window cost of 50-500 (χ² ≈ dof), 1e-4 is a Δχ² of
-# 0.005-0.05, a parameter step well below its σ, and the next solve, warm-started a second
-# later, carries on from there. Measured (bench/load_change.py): capped at 2 steps the
-# tracked radii matched those of 10 steps at 1e-6 to 0.001 %; at 3 steps 91 % of the
-# solves end converged, and a solve takes ~8 ms instead of ~15 (bench/node_latency.py).
-RELATIVE_TOLERANCE = 1e-4
-MAX_ITERATIONS = 3
-# The published σ is the window's H⁻¹ scaled by its a-posteriori variance factor
-# (window_variance_factor); the change test keeps the stated model it is tuned on.
-VARIANCE_FACTOR_LIMITS = (0.01, 100.0)
+from sclam_ros.online.config import WindowSolveConfig
 
 
 @dataclass
@@ -64,7 +53,7 @@ class SolveOutcome:
     variance_factor: float = 1.0  # σ̂₀² of the window (window_variance_factor)
 
 
-def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
+def run_solve(job: Optional[SolveJob], config: WindowSolveConfig) -> Optional[SolveOutcome]:
     """LM on a prepared window problem and the marginal covariance of the calibration."""
     from sclam_ros.core.estimator import residual_rms  # estimator imports nothing of the window
 
@@ -74,8 +63,8 @@ def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
     # Judged at the warm start, before the lock is added (see Observability.of_problem).
     observability = Observability.of_problem(problem, graph_mod.prior_sigmas(job.nominal))
     problem.factors.extend(observability.lock(job.nominal))
-    result = levenberg_marquardt(problem, max_iterations=MAX_ITERATIONS,
-                                 relative_tolerance=RELATIVE_TOLERANCE)
+    result = levenberg_marquardt(problem, max_iterations=config.max_iterations,
+                                 relative_tolerance=config.relative_tolerance)
     calibration = graph_mod.calibration_of(result.values)
     if not np.all(np.isfinite(calibration)):
         return SolveOutcome(job, calibration, np.full((6, 6), np.nan), result.values["poses"],
@@ -84,15 +73,17 @@ def run_solve(job: Optional[SolveJob]) -> Optional[SolveOutcome]:
     cov = marginal_covariance(problem, result.values, ["odometry", "laser"], lu=factorized)
     return SolveOutcome(job, calibration, cov, result.values["poses"], result.converged,
                         residual_rms(problem, result.values, result.system), observability,
-                        window_variance_factor(system, problem.layout.size))
+                        window_variance_factor(system, problem.layout.size,
+                                               config.variance_factor_limits))
 
 
-def window_variance_factor(system, unknowns: int) -> float:
+def window_variance_factor(system, unknowns: int, limits) -> float:
     """The a-posteriori variance factor σ̂₀² = χ² / (rows − unknowns) of a window solve:
     by how much the stated noise model over- (< 1) or understates (> 1) the window's
     residuals, all factors together (the history's priors were made under the same model).
-    The published covariance is the solve's times it. VARIANCE_FACTOR_LIMITS bound it."""
+    The published covariance is the solve's times it (the change test keeps the stated
+    model it is tuned on), `limits` (low, high) bound it."""
     redundancy = len(system.residual) - unknowns
     if redundancy <= 0:
         return 1.0
-    return float(np.clip(np.sum(system.residual ** 2) / redundancy, *VARIANCE_FACTOR_LIMITS))
+    return float(np.clip(np.sum(system.residual ** 2) / redundancy, *limits))

@@ -348,7 +348,8 @@ class SclamNode(Node):
     def diagnostic_status(self) -> DiagnosticStatus:
         rejections = Rejections(self.rejections.counts + self.calibrator.rejections.counts)
         level, message, values = diagnostic_status(self.calibrator.status, self.params,
-                                                   self.received, rejections)
+                                                   self.received, rejections,
+                                                   self.calibrator.config)
         # Messages handed to the calibrator process and not yet taken: stays near 0 when it
         # keeps up with the sensors.
         values["calibrator_backlog"] = self.calibrator.backlog
