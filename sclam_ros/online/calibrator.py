@@ -238,9 +238,9 @@ class OnlineCalibrator:
         observability = outcome.observability
         reported = observability.reported(estimate, job.nominal)
         # The scan matcher's odometry guess uses what may be published: the parameters the
-        # data has determined, the others at nominal. A first solve on a few keyframes had
-        # put the wheel base 0.1 m off; seeded with it, the matcher lost 30 of 600 scans of
-        # a live run (test_online_live).
+        # data has determined, the others at nominal. A first solve on a few keyframes can
+        # put a parameter they do not determine far off, and a matcher seeded with it loses
+        # scans (docs/decisions/online.md#scan-matcher-seed).
         self.frontend.calibration = reported.copy()
         self.window.solved_poses = dict(zip(job.keyframe_indices, outcome.poses))
         self.solves += 1

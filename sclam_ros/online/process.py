@@ -3,8 +3,9 @@
 The node's JointState → ~/odom path must answer at the encoder rate within a millisecond or
 two. Scan registration (KISS-ICP, point-to-line refinement) and the window solve take
 milliseconds each and are mostly Python: on a thread of the node's process they hold the
-interpreter lock while an encoder callback waits (measured: ~/odom p99 ~20 ms against 3.7 ms
-for a bare relay, bench/node_latency.py). Here they run in a child process:
+interpreter lock while an encoder callback waits, and ~/odom comes late
+(docs/decisions/online.md#solver-thread-and-calibrator-process). Here they run in a child
+process:
 
     node process                                child process (this module's _serve)
     JointState → integrate → ~/odom ─┐

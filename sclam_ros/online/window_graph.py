@@ -33,8 +33,8 @@ def window_problem(keyframes, params, calibration, nominal, prior: Optional[Gaus
 def warm_poses(keyframes, inputs, solved_poses: dict, calibration):
     """Poses of the last solve where the window still holds them; the new keyframes
     chained on from there. The window moves by a keyframe or two between solves, so
-    LM starts next to its optimum (measured: ~9 iterations from chained scan matches
-    per solve, see bench/node_latency.py, against 2-3 warm)."""
+    LM starts next to its optimum and needs a few steps where chained scan matches need
+    several times more (docs/decisions/online.md#warm-start)."""
     known = [n for n, kf in enumerate(keyframes) if kf.index in solved_poses]
     if not known or known != list(range(len(known))):
         return graph_mod.initial_poses(inputs, calibration)
@@ -42,8 +42,8 @@ def warm_poses(keyframes, inputs, solved_poses: dict, calibration):
     poses = np.empty((len(keyframes), 3))
     poses[: last + 1] = [solved_poses[kf.index] for kf in keyframes[: last + 1]]
     if last + 1 < len(keyframes):
-        # Only the new keyframes are chained, from the last solved one (chaining the
-        # whole window was half the time of preparing a solve).
+        # Only the new keyframes are chained, from the last solved one: chaining the
+        # whole window costs as much as the rest of preparing a solve.
         tail = graph_mod.initial_poses(graph_mod.GraphInputs.from_keyframes(keyframes[last:]),
                                        calibration)
         poses[last + 1:] = se2.compose(np.broadcast_to(poses[last], tail[1:].shape), tail[1:])
