@@ -25,7 +25,7 @@ def rss_mb() -> float:
 def memory_run(hours, workdir, scan_rate=10.0, beams=360, encoder_rate=100.0):
     from sclam_ros.core.params import SclamParams
     from sclam_ros.io.recording import iter_keyframes
-    from sclam_ros.online.window import OnlineCalibrator
+    from sclam_ros.online.calibrator import OnlineCalibrator
     from sclam_ros.sim import simulate
 
     bag = workdir / "memory"

@@ -19,6 +19,7 @@ Per scenario, worst over its seeds (errors against the truth at each estimate's 
   the (first) change both are first within 2σ of the truth.
 
 Run: .venv/bin/python bench/load_change.py [--seeds 5] [--jobs 2] [--scenarios ...]
+     [--set SECTION.FIELD=VALUE ...]   (the calibrator's OnlineConfig, e.g. window.distance=10)
 """
 from __future__ import annotations
 
@@ -55,10 +56,10 @@ RADII = ("wheel_radius_left", "wheel_radius_right")
 
 def run_one(job):
     """Simulate one scenario/seed and track it; the row of numbers for the table."""
-    name, seed, workdir = job
+    name, seed, workdir, config = job
     from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
     from sclam_ros.io.recording import iter_outputs
-    from sclam_ros.online.window import OnlineCalibrator
+    from sclam_ros.online.calibrator import OnlineCalibrator
     from sclam_ros.sim import simulate
     from sclam_ros.sim.effects import make_effect
 
@@ -66,7 +67,7 @@ def run_one(job):
     bag = Path(workdir) / f"{name.replace(' ', '_').replace('%', 'pc').replace('/', '')}_{seed}"
     truth = simulate(bag, duration=duration, seed=seed, effects=effects, overwrite=True)
     params = SclamParams.from_yaml(bag / "params.yaml")
-    calibrator = OnlineCalibrator(params)
+    calibrator = OnlineCalibrator(params, config=config)
     rows = []  # (t since start, six values, detections so far)
     for estimate in iter_outputs(bag, params, calibrator):
         if estimate is not None:
@@ -109,6 +110,24 @@ def run_one(job):
     return out
 
 
+def online_config(assignments):
+    """The default OnlineConfig with `section.field=value` assignments applied."""
+    from dataclasses import replace
+
+    from sclam_ros.online.config import OnlineConfig
+
+    config = OnlineConfig()
+    for assignment in assignments:
+        name, value = assignment.split("=", 1)
+        section, key = name.split(".")
+        part = getattr(config, section)
+        old = getattr(part, key)
+        new = (tuple(float(v) for v in value.split(",")) if isinstance(old, tuple)
+               else type(old)(value))
+        config = replace(config, **{section: replace(part, **{key: new})})
+    return config
+
+
 def covered_from(t, z, start) -> float:
     """Seconds after `start` until z is first below 2 (nan: never)."""
     inside = np.flatnonzero((t >= start) & (z < 2.0))
@@ -129,9 +148,12 @@ def main():
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--jobs", type=int, default=2, help="processes (one per core)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS), choices=list(SCENARIOS))
+    ap.add_argument("--set", nargs="+", default=[], metavar="SECTION.FIELD=VALUE",
+                    help="tuning of the calibrator (sclam_ros/online/config.py)")
     args = ap.parse_args()
+    config = online_config(args.set)
     workdir = scratch_dir("sclam_load_change_")
-    jobs = [(name, seed, workdir) for name in args.scenarios for seed in range(1, args.seeds + 1)]
+    jobs = [(name, seed, workdir, config) for name in args.scenarios for seed in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(args.jobs) as pool:
         results = list(pool.map(run_one, jobs))
     rows = []
@@ -158,7 +180,8 @@ def main():
                      z_cell([r["z_lag"] for r in mine if r["z_lag"] is not None]),
                      z_cell([r["z_after"] for r in mine]), covered])
     print(f"online calibrator (window_distance 100 m: radii memory fading over 100 m, change "
-          f"points); worst over {args.seeds} seeds per scenario")
+          f"points); worst over {args.seeds} seeds per scenario"
+          + (f"; {' '.join(args.set)}" if args.set else ""))
     print(table(rows, ["scenario", "runs", "detection delay s (median / worst)",
                        "radius error from +30 s %", "from +60 s %", "wheel base error %",
                        "laser error mm", "laser yaw error deg", "false alarms / h",

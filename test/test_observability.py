@@ -15,7 +15,7 @@ from sclam_ros.core.observability import MIN_INFORMATION_GAIN, Observability
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
 from sclam_ros.core.problem import Values
 from sclam_ros.io.recording import iter_outputs, read_recording
-from sclam_ros.online.window import OnlineCalibrator
+from sclam_ros.online.calibrator import OnlineCalibrator
 from sclam_ros.sim import simulate
 
 DURATIONS = {"still": 10.0, "straight": 40.0, "spin": 30.0, "route": 60.0}

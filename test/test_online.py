@@ -1,4 +1,4 @@
-"""The online calibrator (window.py) offline: `sclam calibrate --track`, the incremental
+"""The online calibrator (online/calibrator.py) offline: `sclam calibrate --track`, the incremental
 keyframe merge, and a load change tracked by the sliding window."""
 from __future__ import annotations
 
@@ -16,11 +16,13 @@ from sclam_ros.io.recording import iter_keyframes
 from sclam_ros.core.marginal import NOT_RADII, RADII, Gaussian
 from sclam_ros.online.change import (change_point, change_weight, fade_radii,
                                      radii_covariance_with_change)
-from sclam_ros.online.window import CHANGE_STATISTIC, POSE_WINDOW_DISTANCE, OnlineCalibrator
+from sclam_ros.online.calibrator import OnlineCalibrator
+from sclam_ros.online.config import OnlineConfig
 
 DURATION = 200.0
 CHANGE_AT = 100.0  # s after the start
 CHANGE = {"left": -0.01, "right": -0.0033}
+CONFIG = OnlineConfig()
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +72,7 @@ def test_tracked_radii_follow_a_load_change(load_change):
 
 
 def test_radius_change_detected_after_the_change_only(load_change):
-    """The radii window is cut (window.py: change test) once, after the change and within a
+    """The radii window is cut (change_detector.py) once, after the change and within a
     minute of it; before it the window keeps growing past the pose window."""
     bag, truth, _ = load_change
     params = SclamParams.from_yaml(bag / "params.yaml")
@@ -85,7 +87,7 @@ def test_radius_change_detected_after_the_change_only(load_change):
         if t < CHANGE_AT:
             longest_before = max(longest_before, calibrator.window_length())
     assert len(detected) == 1 and CHANGE_AT < detected[0] < CHANGE_AT + 60, detected
-    assert longest_before > 2 * POSE_WINDOW_DISTANCE  # the marginalised part counts
+    assert longest_before > 2 * CONFIG.window.distance  # the marginalised part counts
 
 
 def test_wheel_base_not_moved_by_the_load_change(load_change):
@@ -184,7 +186,7 @@ def test_published_radii_sigma_weighs_in_a_change_being_detected():
     np.testing.assert_allclose(found.none_covariance, none_cov, rtol=1e-6)
     after_sigma = np.sqrt(np.diag(found.after_covariance))
     assert np.all(np.abs(none + found.shift - step) < 3 * after_sigma)
-    weight = change_weight(found.statistic, CHANGE_STATISTIC)
+    weight = change_weight(found.statistic, CONFIG.change.statistic)
     assert weight > 0.99
     published = radii_covariance_with_change(none_cov, found, weight)
     assert np.all(np.abs(none - step) > 3 * np.sqrt(np.diag(none_cov)))
@@ -192,9 +194,10 @@ def test_published_radii_sigma_weighs_in_a_change_being_detected():
 
 
 def test_change_weight_is_even_at_the_threshold_and_small_well_below_it():
-    assert change_weight(CHANGE_STATISTIC, CHANGE_STATISTIC) == pytest.approx(0.5)
-    assert change_weight(0.0, CHANGE_STATISTIC) < 0.05
-    assert change_weight(2 * CHANGE_STATISTIC, CHANGE_STATISTIC) > 0.95
+    threshold = CONFIG.change.statistic
+    assert change_weight(threshold, threshold) == pytest.approx(0.5)
+    assert change_weight(0.0, threshold) < 0.05
+    assert change_weight(2 * threshold, threshold) > 0.95
 
 
 def test_change_point_statistic_without_a_change_is_small():

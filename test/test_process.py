@@ -16,7 +16,7 @@ from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.io import bag
 from sclam_ros.io.messages import joint_state_to_raw, laser_scan_to_scan
 from sclam_ros.online.process import CalibratorProcess
-from sclam_ros.online.window import OnlineCalibrator
+from sclam_ros.online.calibrator import OnlineCalibrator
 from sclam_ros.sim import simulate
 
 import polling

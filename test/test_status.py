@@ -13,10 +13,12 @@ from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
 from sclam_ros.io.recording import iter_outputs
 from sclam_ros.online.status import OK, WARN, diagnostic_status, wheel_parameters_data
-from sclam_ros.online.window import OnlineCalibrator
+from sclam_ros.online.calibrator import OnlineCalibrator
+from sclam_ros.online.config import OnlineConfig
 from sclam_ros.sim import simulate
 
 RECEIVED = {"joint_states": 0, "scan": 0}
+CONFIG = OnlineConfig()
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +35,8 @@ def tracked(tmp_path_factory):
 def test_no_estimate_is_a_warning_asking_to_drive():
     params = SclamParams()
     calibrator = OnlineCalibrator(params)
-    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
+    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections(),
+                                               CONFIG)
     assert level == WARN and "no estimate" in message
     # Nothing to say yet is said by absence, never by "nan" or "n/a".
     for key in ("last_solve_converged", "radius_change_chi2", "residual_rms"):
@@ -46,7 +49,8 @@ def test_status_of_a_calibrated_run(tracked):
     assert calibrator.estimate is not None
     rejections = Rejections()
     rejections.add("scan_empty")
-    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, rejections)
+    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, rejections,
+                                               CONFIG)
     observable = calibrator.status().observable
     # A 60 s random drive with turns both ways excites every parameter.
     assert all(observable.values()), observable
@@ -67,7 +71,8 @@ def test_unobserved_parameters_are_named(tracked):
     estimate = calibrator.estimate
     try:
         estimate.observable["laser_y"] = False  # as a straight-only drive leaves it
-        level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
+        level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED,
+                                                   Rejections(), CONFIG)
     finally:
         estimate.observable["laser_y"] = True
     assert level == WARN and "laser_y" in message
@@ -90,14 +95,14 @@ def test_a_suspected_radius_change_is_a_warning(tracked):
     import dataclasses
 
     from sclam_ros.online.change import change_weight
-    from sclam_ros.online.window import CHANGE_STATISTIC
 
     params, calibrator, _ = tracked
+    threshold = CONFIG.change.statistic
     quiet = calibrator.status()
     assert (not math.isfinite(quiet.change_statistic)
-            or change_weight(quiet.change_statistic, CHANGE_STATISTIC) < 0.5)
-    suspected = dataclasses.replace(quiet, change_statistic=CHANGE_STATISTIC + 4.0)
-    level, message, values = diagnostic_status(suspected, params, RECEIVED, Rejections())
+            or change_weight(quiet.change_statistic, threshold) < 0.5)
+    suspected = dataclasses.replace(quiet, change_statistic=threshold + 4.0)
+    level, message, values = diagnostic_status(suspected, params, RECEIVED, Rejections(), CONFIG)
     assert level == WARN and "wheel radii may have changed" in message
     assert float(values["radius_change_weight"]) > 0.85
 
@@ -113,13 +118,14 @@ def test_a_noisy_laser_with_most_matches_unconfirmed_warns_that_its_sigma_may_be
     for _ in iter_outputs(bag, params, calibrator):
         pass
     status = calibrator.status()
-    level, message, values = diagnostic_status(status, params, RECEIVED, Rejections())
+    level, message, values = diagnostic_status(status, params, RECEIVED, Rejections(), CONFIG)
     assert 2 * values["scan_matches_confirmed"] < values["scan_matches"], values
     assert level == WARN and "σ may be too small" in message, message
 
 
 def test_matches_mostly_confirmed_give_no_sigma_warning(tracked):
     params, calibrator, _ = tracked
-    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections())
+    level, message, values = diagnostic_status(calibrator.status(), params, RECEIVED, Rejections(),
+                                               CONFIG)
     assert 2 * values["scan_matches_confirmed"] > values["scan_matches"] > 0, values
     assert "σ may be too small" not in message

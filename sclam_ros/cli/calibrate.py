@@ -108,7 +108,7 @@ def track(bag, params, progress=None):
     and the per-scan keyframes the calibrator was given.
     """
     from sclam_ros.io.recording import iter_outputs
-    from sclam_ros.online.window import OnlineCalibrator
+    from sclam_ros.online.calibrator import OnlineCalibrator
 
     calibrator = OnlineCalibrator(params)
     sink = _KeepingKeyframes(calibrator)

@@ -160,8 +160,8 @@ def radii_covariance_with_change(radii_cov, found: ChangePoint, weight: float,
     which is `radii_cov` plus w₁ (Σ₁ − Σ₀ + d dᵀ), clipped to positive semidefinite.
 
     Without it, the estimate published while a load change is being detected is the old
-    radii with the old σ: measured 10σ off (RMS) in the 30 s after a 1 % step
-    (bench/load_change.py)."""
+    radii with the old σ, many σ off the new radii
+    (docs/decisions/online.md#radii-sigma-during-a-change)."""
     if found.shift is None or not weight > 0.0:
         return radii_cov
     extra = weight * (variance_factor * (found.after_covariance - found.none_covariance)

@@ -3,8 +3,9 @@
 The node's JointState → ~/odom path must answer at the encoder rate within a millisecond or
 two. Scan registration (KISS-ICP, point-to-line refinement) and the window solve take
 milliseconds each and are mostly Python: on a thread of the node's process they hold the
-interpreter lock while an encoder callback waits (measured: ~/odom p99 ~20 ms against 3.7 ms
-for a bare relay, bench/node_latency.py). Here they run in a child process:
+interpreter lock while an encoder callback waits, and ~/odom comes late
+(docs/decisions/online.md#solver-thread-and-calibrator-process). Here they run in a child
+process:
 
     node process                                child process (this module's _serve)
     JointState → integrate → ~/odom ─┐
@@ -35,6 +36,7 @@ from dataclasses import replace
 from typing import Callable, Optional
 
 from sclam_ros.core.inputs import Rejections
+from sclam_ros.online.config import OnlineConfig
 
 log = logging.getLogger("sclam")
 
@@ -42,13 +44,13 @@ STATUS_PERIOD_S = 0.5  # the child sends its status at least this often while da
 STOP_TIMEOUT_S = 5.0
 
 
-def _serve(params, inbox, outbox) -> None:
+def _serve(params, config, inbox, outbox) -> None:
     """The child process: run the calibrator on what arrives, report what it learns."""
     from sclam_ros.online.solver_thread import SolverThread
-    from sclam_ros.online.window import OnlineCalibrator
+    from sclam_ros.online.calibrator import OnlineCalibrator
 
     rejections = Rejections()
-    calibrator = OnlineCalibrator(params, rejections, inline_solve=False)
+    calibrator = OnlineCalibrator(params, rejections, inline_solve=False, config=config)
     lock = threading.Lock()
     epoch = 0
     handled = 0  # messages and commands taken from the inbox
@@ -117,17 +119,20 @@ class CalibratorProcess:
     ``add_encoder`` / ``add_scan`` only enqueue (microseconds). ``status`` is the newest
     CalibratorStatus, ``estimate`` its Estimate; ``rejections`` the child's counts.
     ``on_estimate(estimate)`` is called on the reader thread for every new estimate.
+    ``config`` tunes the child's calibrator.
     """
 
     def __init__(self, params, on_estimate: Optional[Callable] = None,
-                 on_error: Optional[Callable[[str], None]] = None):
-        from sclam_ros.online.window import OnlineCalibrator
+                 on_error: Optional[Callable[[str], None]] = None,
+                 config: OnlineConfig = OnlineConfig()):
+        from sclam_ros.online.calibrator import OnlineCalibrator
 
         self.params = params
+        self.config = config
         self.on_estimate = on_estimate or (lambda estimate: None)
         self.on_error = on_error or (lambda message: log.error(message))
         # What a status says before the child has said anything: nominal, nothing known.
-        self._initial = OnlineCalibrator(params).status()
+        self._initial = OnlineCalibrator(params, config=config).status()
         self.status = self._initial
         self.rejections = Rejections()
         self.failure: Optional[str] = None
@@ -140,7 +145,8 @@ class CalibratorProcess:
         context = multiprocessing.get_context("spawn")
         self._inbox = context.Queue()
         self._outbox = context.Queue()
-        self._process = context.Process(target=_serve, args=(params, self._inbox, self._outbox),
+        self._process = context.Process(target=_serve,
+                                        args=(params, config, self._inbox, self._outbox),
                                         name="sclam_calibrator", daemon=True)
         self._process.start()
         self._reader = threading.Thread(target=self._read, name="sclam_calibrator_reader",

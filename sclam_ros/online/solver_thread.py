@@ -1,11 +1,9 @@
 """The online window solve on a thread of its own.
 
-A window solve takes ~10 ms (a few warm-started LM steps over ~45 poses in numpy; 15-35 ms
-before its iterations were capped). Run in a subscription callback it holds up every
-message queued behind it: at 40 Hz scans and 100 Hz encoders, ~/odom and the next
-keyframes waited for it (measured before this module: encoder → odom p99 32 ms,
-bench/node_latency.py). Here the callbacks only append
-keyframes and ask for a solve; this thread marginalises the keyframes that left the pose
+A window solve takes milliseconds (a few warm-started LM steps over tens of poses in
+numpy). Run in a subscription callback it holds up every message queued behind it: ~/odom
+and the next keyframes wait for it (docs/decisions/online.md#solver-thread-and-calibrator-process).
+Here the callbacks only append keyframes and ask for a solve; this thread marginalises the keyframes that left the pose
 window and solves the window with the shared lock released, taking it only to read and
 write the calibrator's state (prepare_solve, apply_solve, take_chunks_due, add_chunks).
 Requests that arrive while a solve runs are merged into the next one: the solver always
@@ -20,7 +18,9 @@ from __future__ import annotations
 import threading
 from typing import Callable, Optional
 
-from sclam_ros.online.window import Estimate, OnlineCalibrator, run_solve
+from sclam_ros.online.calibrator import OnlineCalibrator
+from sclam_ros.online.estimate import Estimate
+from sclam_ros.online.window_solve import run_solve
 
 
 class SolverThread:
@@ -71,7 +71,7 @@ class SolverThread:
             job = self.calibrator.prepare_solve()
         if job is None:
             return None
-        outcome = run_solve(job)
+        outcome = run_solve(job, self.calibrator.config.solve)
         with self.lock:
             return self.calibrator.apply_solve(outcome)
 

@@ -12,14 +12,10 @@ import math
 
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS
 from sclam_ros.online.change import change_weight
-from sclam_ros.online.window import CHANGE_STATISTIC
+from sclam_ros.online.config import OnlineConfig
 
 WHEEL_PARAMETER_COLUMNS = ODOMETRY_KEYS
 WHEEL_PARAMETER_ROWS = ("value", "sigma", "observable")
-UNCONVERGED_WARNING = 3  # window solves in a row that hit their iteration cap
-# The change model's weight in the radii σ (change.change_weight) beyond which the status
-# warns: above even odds, the test is one or two solves from declaring it.
-CHANGE_SUSPECTED = 0.5
 OK, WARN = "OK", "WARN"
 
 
@@ -31,10 +27,10 @@ def wheel_parameters_data(estimate) -> list:
             + [float(estimate.observable[k]) for k in WHEEL_PARAMETER_COLUMNS])
 
 
-def diagnostic_status(status, params, received, rejections):
-    """(level, message, values) of the node's diagnostics from a window.CalibratorStatus:
-    level is OK or WARN, values an ordered {key: value} of what a person checks on a running
-    calibration. A value that does not exist yet (no estimate, no change test) is absent,
+def diagnostic_status(status, params, received, rejections, config: OnlineConfig):
+    """(level, message, values) of the node's diagnostics from an estimate.CalibratorStatus
+    of a calibrator tuned by `config`: level is OK or WARN, values an ordered {key: value}
+    of what a person checks on a running calibration. A value that does not exist yet (no estimate, no change test) is absent,
     never "nan" or "n/a"."""
     cal = status
     estimate = cal.estimate
@@ -56,7 +52,7 @@ def diagnostic_status(status, params, received, rejections):
     }
     weight = math.nan  # the change model's weight in the published radii σ
     if math.isfinite(cal.change_statistic):
-        weight = change_weight(cal.change_statistic, CHANGE_STATISTIC)
+        weight = change_weight(cal.change_statistic, config.change.statistic)
         values["radius_change_chi2"] = f"{cal.change_statistic:.3g}"
         values["radius_change_weight"] = f"{weight:.2f}"
     level, message = WARN, "no estimate yet: drive the robot"
@@ -73,12 +69,12 @@ def diagnostic_status(status, params, received, rejections):
         missing = [k for k in CALIBRATION_KEYS if not cal.observable[k]]
         if missing:
             message = "not observed by the data yet, kept at nominal: " + ", ".join(missing)
-        elif weight > CHANGE_SUSPECTED:
+        elif weight > config.status.change_suspected:
             # The radii published are those before a change the test is about to declare;
             # their σ is widened to cover it (change.radii_covariance_with_change).
             message = ("the wheel radii may have changed (a load put on or taken off?): their "
                        "σ is widened until the change test decides")
-        elif cal.unconverged_in_a_row >= UNCONVERGED_WARNING:
+        elif cal.unconverged_in_a_row >= config.status.unconverged_warning:
             # One capped solve is normal (the next, warm-started, carries on); a run
             # of them means the window's optimum keeps moving away.
             message = f"{cal.unconverged_in_a_row} solves in a row did not converge"

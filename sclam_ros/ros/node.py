@@ -1,6 +1,6 @@
 """``sclam_node``: online calibration on the live ROS graph.
 
-The node is a thin shell around :class:`sclam_ros.online.window.OnlineCalibrator`: it declares the
+The node is a thin shell around :class:`sclam_ros.online.calibrator.OnlineCalibrator`: it declares the
 parameters of :class:`sclam_ros.core.params.SclamParams`, converts messages, and publishes what the
 calibrator knows. The calibrator (scan registration, window solves) runs in a child process
 (online/process.py): the subscription callbacks only integrate and publish ~/odom and hand the
@@ -32,7 +32,7 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
                          nominal value with its prior σ.
   ``/diagnostics``       diagnostic_msgs/DiagnosticArray at 1 Hz (wall clock): window fill
                          (radii window, and its part kept as poses), radius changes detected
-                         and the last change χ² (online/window.py),
+                         and the last change χ² (online/change_detector.py),
                          observability of each parameter (core/observability.py: an
                          unobserved one is at nominal, ``<name>_observable`` false), rejected
                          input by reason, last solve converged (WARN after 3 unconverged in a
@@ -348,7 +348,8 @@ class SclamNode(Node):
     def diagnostic_status(self) -> DiagnosticStatus:
         rejections = Rejections(self.rejections.counts + self.calibrator.rejections.counts)
         level, message, values = diagnostic_status(self.calibrator.status, self.params,
-                                                   self.received, rejections)
+                                                   self.received, rejections,
+                                                   self.calibrator.config)
         # Messages handed to the calibrator process and not yet taken: stays near 0 when it
         # keeps up with the sensors.
         values["calibrator_backlog"] = self.calibrator.backlog
