@@ -4,10 +4,7 @@ import sys
 
 # Our dense products are small (the online window: ~230 columns) and the big solves are
 # banded: BLAS threads only contend with KISS-ICP's own threads, the node's callbacks and
-# each other. Measured on the 2-core target: a 40-column banded solve took 385 ms with
-# OpenBLAS threading, 22 ms with one thread; in the node (40 Hz scans) the window solve's
-# p99 was 30 ms with two BLAS threads, 13 ms with one (bench/node_latency.py).
-# A user's explicit setting wins.
+# each other (docs/decisions/runtime.md). A user's explicit setting wins.
 _BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 _explicit = any(var in os.environ for var in _BLAS_THREAD_VARIABLES)
 for _var in _BLAS_THREAD_VARIABLES:

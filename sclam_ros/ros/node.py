@@ -127,8 +127,8 @@ def _covariance36(cov3) -> list:
 
 # Sensor-data QoS (best effort: matches every laser driver) with a history of about a
 # second of scans instead of its 5: a scan lost costs the calibration an edge, and on a
-# busy 2-core computer the executor can be away for longer than 5 scan periods (measured:
-# 70 of 600 scans lost at 30 Hz in test_online_live with depth 5).
+# busy 2-core computer the executor can be away for longer than 5 scan periods
+# (docs/decisions/runtime.md).
 SCAN_QOS = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
                       durability=qos_profile_sensor_data.durability,
                       history=qos_profile_sensor_data.history)
@@ -172,8 +172,8 @@ class SclamNode(Node):
         self.create_timer(1.0, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
         # Everything allocated so far (rclpy, numpy, scipy, KISS-ICP, the node) lives as
         # long as the process: keep it out of the cyclic collector's full passes. Without
-        # this a full collection walked it all, stopping callbacks and solver ~100 ms
-        # about once a minute (bench/node_latency.py).
+        # this a full collection walks it all and stalls callbacks and solver
+        # (docs/decisions/runtime.md).
         gc.freeze()
         self.get_logger().info(
             f"calibrating from {self.params.joint_states_topic} ({self.params.left_wheel_joint}, "
