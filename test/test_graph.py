@@ -4,7 +4,8 @@ import pytest
 
 from sclam_ros.core import se2
 from sclam_ros.frontend.pipeline import Keyframe
-from sclam_ros.core.graph import SCAN_MATCH_LAG1_CORRELATION, chained_scan_match_covariance, merge_keyframes
+from sclam_ros.core.config import GraphConfig
+from sclam_ros.core.graph import chained_scan_match_covariance, merge_keyframes
 
 
 def chain(n, rng, broken=()):
@@ -29,7 +30,8 @@ def test_merging_adds_wheel_angles_and_composes_scan_matches():
         z = se2.compose(z, k.laser_motion)
     assert np.allclose(merged[1].laser_motion, z)
     # Five matches of covariance 1e-4 I with lag-1 correlation ρ: (5 + 8ρ)·1e-4 I.
-    expected = (5 + 8 * SCAN_MATCH_LAG1_CORRELATION) * 1e-4 * np.eye(3)
+    rho = GraphConfig().scan_match_lag1_correlation
+    expected = (5 + 8 * rho) * 1e-4 * np.eye(3)
     assert np.allclose(np.linalg.inv(merged[1].laser_information), expected)
 
 
@@ -62,7 +64,7 @@ def test_chained_covariance_matches_a_simulated_ma1_chain():
     sampled = np.var(errors.sum(axis=1))
     part = np.array([[1 + theta**2]])  # variance of one error
     formula = chained_scan_match_covariance([part] * n)[0, 0]
-    assert theta / (1 + theta**2) == pytest.approx(SCAN_MATCH_LAG1_CORRELATION)
+    assert theta / (1 + theta**2) == pytest.approx(GraphConfig().scan_match_lag1_correlation)
     assert formula == pytest.approx(sampled, rel=0.02)
     assert formula < 0.5 * n * part[0, 0]  # far below the independent sum
 

@@ -11,7 +11,8 @@ import pytest
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core.estimator import calibrate_keyframes
-from sclam_ros.core.observability import MIN_INFORMATION_GAIN, Observability
+from sclam_ros.core.config import ObservabilityConfig
+from sclam_ros.core.observability import Observability
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams
 from sclam_ros.core.problem import Values
 from sclam_ros.io.recording import iter_outputs, read_recording
@@ -132,11 +133,15 @@ def test_axis_aligned_and_combined_directions():
 
 
 def test_threshold_is_between_the_prior_and_real_data():
-    """A direction with exactly the threshold's gain is determined; 1 % less is not."""
+    """A direction with exactly the threshold's gain is determined; 1 % less is not; the
+    threshold is the config's."""
     prior = np.ones(6)
-    for gain, determined in ((MIN_INFORMATION_GAIN * 1.01, True), (MIN_INFORMATION_GAIN * 0.99, False)):
-        cov = np.diag([1e-6] * 5 + [1.0 / (1.0 + gain)])
-        assert Observability.from_covariance(cov, prior).observable[5] == determined
+    for config in (ObservabilityConfig(), ObservabilityConfig(min_information_gain=10.0)):
+        threshold = config.min_information_gain
+        for gain, determined in ((threshold * 1.01, True), (threshold * 0.99, False)):
+            cov = np.diag([1e-6] * 5 + [1.0 / (1.0 + gain)])
+            decision = Observability.from_covariance(cov, prior, config=config)
+            assert decision.observable[5] == determined
 
 
 @pytest.mark.parametrize("motion", ["straight", "spin", "still", "straight_then_turns"])

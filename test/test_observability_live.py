@@ -23,7 +23,7 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 from sclam_ros.cli.main import main  # noqa: E402
-from sclam_ros.core.graph import PRIOR_SIGMA_LASER_XY  # noqa: E402
+from sclam_ros.core.config import GraphConfig  # noqa: E402
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams  # noqa: E402
 from sclam_ros.io.bag import iter_messages, topic_info  # noqa: E402
 from sclam_ros.ros.player import rclpy_class, rosbags_to_rclpy  # noqa: E402
@@ -113,8 +113,9 @@ def test_node_publishes_saves_and_integrates_only_what_it_observed(drives, tmp_p
         assert laser.pose.pose.position.x == nominal["laser_x"]
         assert laser.pose.pose.position.y == nominal["laser_y"]
         cov = np.reshape(laser.pose.covariance, (6, 6))
-        assert cov[0, 0] == pytest.approx(PRIOR_SIGMA_LASER_XY**2)  # the flag: prior variance
-        assert cov[1, 1] == pytest.approx(PRIOR_SIGMA_LASER_XY**2)
+        prior_xy = GraphConfig().prior_sigma_laser_xy
+        assert cov[0, 0] == pytest.approx(prior_xy**2)  # the flag: prior variance
+        assert cov[1, 1] == pytest.approx(prior_xy**2)
         for key in CALIBRATION_KEYS:
             expected = "false" if key in UNOBSERVED else "true"
             assert diagnostics[f"{key}_observable"] == expected, key

@@ -4,6 +4,7 @@ import scipy.sparse as sp
 from synthetic import make_graph
 
 from sclam_ros.core import factors, kinematics
+from sclam_ros.core.config import LinearConfig
 from sclam_ros.core.correlated_covariance import chain_correlated_covariance, sandwich_covariance
 from sclam_ros.core.covariance import (
     Influence,
@@ -21,7 +22,8 @@ NOMINAL_K = np.array([0.125, 0.125, 0.56])
 NOMINAL_L = np.array([0.22, 0.0, 0.0])
 
 
-def build_problem(g, k0=NOMINAL_K, l0=NOMINAL_L, laser_scale=1.0, kernels=None):
+def build_problem(g, k0=NOMINAL_K, l0=NOMINAL_L, laser_scale=1.0, kernels=None,
+                  linear=LinearConfig()):
     n = len(g["poses"])
     idx = np.arange(n - 1)
     inputs = GraphInputs(np.arange(n) * 0.1, idx, g["dphi"], idx, idx + 1, g["z"], None)
@@ -35,7 +37,7 @@ def build_problem(g, k0=NOMINAL_K, l0=NOMINAL_L, laser_scale=1.0, kernels=None):
     )
     odo = factors.OdometryFactor(idx, idx + 1, g["dphi"], np.linalg.inv(cov_odo))
     las = factors.LaserFactor(idx, idx + 1, g["z"], np.tile(info_laser, (n - 1, 1, 1)))
-    return Problem(values, [odo, las], fixed={"poses": [0]}, kernels=kernels or {})
+    return Problem(values, [odo, las], fixed={"poses": [0]}, kernels=kernels or {}, linear=linear)
 
 
 def calibration(values):
@@ -148,7 +150,8 @@ def test_a_group_whose_redundancy_collapses_keeps_its_one_step_scale(seed):
 def test_inverse_at_gives_the_inverse_on_the_pattern(path):
     """LinearSolver.inverse_at against the dense inverse, on each of its paths: a chain of
     poses with global columns (banded Cholesky + Schur), the same with a loop closure that
-    widens the band past MAX_BANDWIDTH (sparse LU), and a dense H (the online window)."""
+    widens the band past LinearConfig.max_bandwidth (sparse LU), and a dense H (the online
+    window)."""
     rng = np.random.default_rng(4)
     poses, globals_ = 60, 6
     n = 3 * poses
@@ -265,19 +268,17 @@ def test_chain_correlated_covariance_is_the_model_for_independent_scan_errors():
     np.testing.assert_allclose(np.sqrt(np.diag(chain)), np.sqrt(np.diag(model)), rtol=0.15)
 
 
-def test_dense_and_sparse_linear_systems_agree(monkeypatch):
+def test_dense_and_sparse_linear_systems_agree():
     """Small problems (the online window) are linearised into a dense Jacobian and solved
     by one dense Cholesky; large ones stay sparse (banded Cholesky + Schur). Both are the
     same mathematics: the same Jacobian, optimum and covariance to rounding."""
-    from sclam_ros.core import problem as problem_module
-
     g = make_graph(n=60, seed=5)
     problem = build_problem(g)
-    assert problem.layout.size <= problem_module.DENSE_MAX_COLUMNS
+    assert problem.layout.size <= problem.linear.dense_max_columns
     dense_system = problem.linear_system(problem.values)
     dense = levenberg_marquardt(problem)
     dense_cov = marginal_covariance(problem, dense.values, ["odometry", "laser"])
-    monkeypatch.setattr(problem_module, "DENSE_MAX_COLUMNS", 0)
+    problem = build_problem(g, linear=LinearConfig(dense_max_columns=0))
     sparse_system = problem.linear_system(problem.values)
     assert isinstance(dense_system.jacobian, np.ndarray)
     assert not isinstance(sparse_system.jacobian, np.ndarray)

@@ -306,7 +306,8 @@ def _explain_dilution(correction) -> None:
 
 
 def _run(args, warnings) -> int:
-    from sclam_ros.core.estimator import CONVERGED_STEP_SIGMA, calibrate_keyframes
+    from sclam_ros.core.config import CoreConfig
+    from sclam_ros.core.estimator import calibrate_keyframes
     from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.progress import ProgressBar
     from sclam_ros.io.recording import scan_frame_id
@@ -323,16 +324,18 @@ def _run(args, warnings) -> int:
     _warn_about_input(recording.rejections, recording.frontend)
     if not args.quiet:
         log.info("solving the graph: %d scans", len(recording.keyframes))
+    config = CoreConfig()
     result = calibrate_keyframes(
         recording.keyframes, params, recording.rejections,
         progress=(lambda i, cost: log.info("LM iteration %d, cost %.1f", i, cost))
         if args.verbose else None,
+        config=config,
     )
     print(f"{result.scans_used} scans matched ({MATCH_PERIOD:g} s apart) over {result.duration_s:.1f} s; "
           f"solver: {result.iterations} iterations, converged: {result.converged}")
     if not result.converged:
         log.warning("the solver stopped with the parameters still moving by more than %.2g σ "
-                    "per step: the estimate is not final", CONVERGED_STEP_SIGMA)
+                    "per step: the estimate is not final", config.estimator.converged_step_sigma)
     print(format_table(result, truth))
     _explain_unobserved(result.observable, recording.frontend)
     _explain_dilution(result.wheel_noise_correction)

@@ -11,6 +11,7 @@ from typing import Optional
 
 import numpy as np
 
+from sclam_ros.core.config import SolverConfig
 from sclam_ros.core.covariance import Influence
 from sclam_ros.core.problem import Problem, Values
 from sclam_ros.core.variance_components import component_scales
@@ -33,7 +34,8 @@ def lag1_correlation(whitened, t, u) -> np.ndarray:
 
 
 def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=None,
-                                influence: Optional[Influence] = None, per_component=True):
+                                influence: Optional[Influence] = None, per_component=True,
+                                config: SolverConfig = SolverConfig()):
     """H⁻¹ (Jᵀ C J) H⁻¹ of the named blocks, with C the errors' covariance when consecutive
     edges of a factor with `chained_errors` are correlated; and those correlations.
 
@@ -52,7 +54,7 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
     block of C is diag(scales), so that a part of the stated model too large for these data
     (the sideways slip) does not widen the σ of what rests on it, while the estimate keeps
     the variance components' weights. `influence`: Influence.of(problem, values, blocks, lu)
-    if already at hand.
+    if already at hand; `config`: component_scales' redundancy threshold.
     """
     influence = influence or Influence.of(problem, values, blocks, lu)
     system, cov = influence.system, influence.marginal
@@ -64,7 +66,7 @@ def chain_correlated_covariance(problem: Problem, values: Values, blocks, lu=Non
         name, start, stop = next(factor_rows)
         d = factor.edge_dim
         if per_component and factor.measurement and not getattr(factor, "chained_errors", False):
-            scales = component_scales(influence, start, stop, d)
+            scales = component_scales(influence, start, stop, d, config)
             rows = influence.rows[start:stop].reshape(-1, d, influence.rows.shape[1])
             cov = cov + np.einsum("tip,i,tiq->pq", rows, scales - 1.0, rows)
             continue

@@ -24,7 +24,7 @@ def factorize_information(problem: Problem, values: Values, system: Optional[Sys
     if system is None:
         system = problem.linear_system(values)
     hessian, _ = _normal_equations(system)
-    return system, hessian, LinearSolver(hessian, problem.banded_size)
+    return system, hessian, LinearSolver(hessian, problem.banded_size, problem.linear)
 
 
 def remaining_step(problem: Problem, values: Values, blocks):
@@ -104,7 +104,7 @@ class Influence:
         system = problem.linear_system(values)
         if lu is None:
             hessian, _ = _normal_equations(system)
-            lu = LinearSolver(hessian, problem.banded_size)
+            lu = LinearSolver(hessian, problem.banded_size, problem.linear)
         cols, solved = _inverse_columns(problem, blocks, lu)
         marginal = solved[cols]
         return cls(system, 0.5 * (marginal + marginal.T), system.jacobian @ solved, lu)

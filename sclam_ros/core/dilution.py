@@ -42,25 +42,20 @@ from __future__ import annotations
 import numpy as np
 
 from sclam_ros.core import kinematics
+from sclam_ros.core.config import GraphConfig
 from sclam_ros.core.covariance import absorbed_trace
 from sclam_ros.core.params import CALIBRATION_KEYS
 
-
-# The correction is first order in noise²/signal²: applied where it moves no calibration
-# parameter by more than this fraction of its value. bench/optiodom_repeatability.py: it
-# moves b by 0.04-0.10 % on the OptiOdom square runs and would by 13-23 % on the circular
-# runs, where constant curvature leaves b weakly determined (σ 6-8 %) and the uncorrected b
-# (197-210 mm) agrees with the square runs' (200-204 mm): there the residuals are not the
-# wheel noise the correction assumes.
-MAX_RELATIVE_SHIFT = 0.01
 
 
 class WheelNoiseCorrection:
     """−Σᵢ wᵢ ∂Dᵢ/∂k · (k − k₀) over the "odometry" block, wᵢ the unabsorbed share.
 
     `active` is cleared (variance_components.settle_corrections) where the correction would
-    move a parameter by more than MAX_RELATIVE_SHIFT; `shift` holds the move it makes or would
-    make (m), so that a result can say how much dilution it left in."""
+    move a parameter by more than `max_relative_shift` of its value
+    (GraphConfig.max_dilution_shift: the correction is first order in noise²/signal²;
+    docs/decisions/wheel_base_dilution.md); `shift` holds the move it makes or would make
+    (m), so that a result can say how much dilution it left in."""
 
     block = "odometry"
     active = True
@@ -69,17 +64,20 @@ class WheelNoiseCorrection:
     # rotation residuals show: observe() sets it.
     level = 1.0
 
-    def __init__(self, k0, edge_slopes, odometry_variance, laser_variance):
+    def __init__(self, k0, edge_slopes, odometry_variance, laser_variance,
+                 max_relative_shift: float = GraphConfig.max_dilution_shift):
         """edge_slopes (m, 3): ∂Dᵢ/∂k at k₀; odometry_variance (m,), laser_variance (m,): the
         rotation variances of each odometry edge and of the scan match joining the same two
         poses (inf where none does)."""
+        self.max_relative_shift = float(max_relative_shift)
         self.k0 = np.asarray(k0, float)
         self.edge_slopes = np.asarray(edge_slopes, float).reshape(-1, 3)
         self.odometry_variance = np.asarray(odometry_variance, float)
         self.laser_variance = np.asarray(laser_variance, float)
 
     def holds(self, shift, values) -> bool:
-        return bool(np.all(np.abs(shift) <= MAX_RELATIVE_SHIFT * np.abs(values[self.block][0])))
+        limit = self.max_relative_shift * np.abs(values[self.block][0])
+        return bool(np.all(np.abs(shift) <= limit))
 
     def observe(self, system, lu) -> None:
         """`level` from the odometry edges' rotation rows of the linear system at the
@@ -112,9 +110,11 @@ class WheelNoiseCorrection:
         return -float(slope @ (values[self.block][0] - self.k0)), -slope
 
 
-def wheel_noise_correction(inputs, params, k, odometry_covariance, encoder_floor):
+def wheel_noise_correction(inputs, params, k, odometry_covariance, encoder_floor,
+                           max_relative_shift: float = GraphConfig.max_dilution_shift):
     """The correction for a graph's edges (graph.GraphInputs) at calibration k, with the
-    odometry edges' covariance `odometry_covariance` (m, 3, 3) the factor uses."""
+    odometry edges' covariance `odometry_covariance` (m, 3, 3) the factor uses; applied
+    where it moves no parameter by more than `max_relative_shift` of its value."""
     k = np.asarray(k, float)
     odometry_variance = odometry_covariance[:, 2, 2]
 
@@ -133,7 +133,7 @@ def wheel_noise_correction(inputs, params, k, odometry_covariance, encoder_floor
     laser_rotation = np.linalg.inv(inputs.laser_info[consecutive])[:, 2, 2]
     by_start = dict(zip(inputs.laser_from[consecutive].tolist(), laser_rotation.tolist()))
     laser_variance = np.array([by_start.get(i, np.inf) for i in inputs.odo_from.tolist()])
-    return WheelNoiseCorrection(k, slopes, odometry_variance, laser_variance)
+    return WheelNoiseCorrection(k, slopes, odometry_variance, laser_variance, max_relative_shift)
 
 
 def summary(problem, values, observable):

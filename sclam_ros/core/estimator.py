@@ -11,6 +11,7 @@ import numpy as np
 
 from sclam_ros.core import dilution
 from sclam_ros.core import graph as graph_mod
+from sclam_ros.core.config import CoreConfig, WiringConfig
 from sclam_ros.core.correlated_covariance import chain_correlated_covariance, sandwich_covariance
 from sclam_ros.core.covariance import Influence, remaining_step
 from sclam_ros.core.inputs import Rejections
@@ -18,14 +19,6 @@ from sclam_ros.core.observability import Observability
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.variance_components import solve_with_variance_components
 from sclam_ros.core.wiring import wiring_problem
-
-MIN_KEYFRAMES = 10
-
-# Converged: a further Gauss-Newton step would move no calibration parameter by this
-# fraction of its σ, whatever the iteration count (long real recordings reach LM's cap
-# while a continued solve moves nothing by more than 0.07σ).
-CONVERGED_STEP_SIGMA = 0.1
-
 
 class CalibrationError(RuntimeError):
     """The data cannot support a calibration; the message says why and what to do."""
@@ -98,17 +91,17 @@ def residual_rms(problem, values, system=None) -> dict:
             for name, stats in system.per_factor.items() if name in measured}
 
 
-def check_wiring(keyframes, params) -> None:
+def check_wiring(keyframes, params, config: WiringConfig = WiringConfig()) -> None:
     """CalibrationError naming the fix if the encoders contradict the laser's motion
     (core/wiring.py): swapped or backwards encoders make every number the graph would
     give wrong. The batch solve and `sclam calibrate --track` both refuse on it."""
-    miswired = wiring_problem(keyframes, params)
+    miswired = wiring_problem(keyframes, params, config)
     if miswired:
         raise CalibrationError(miswired)
 
 
 def _judged_again(problem, observability, locks, result, scales, nominal, prior_sigma,
-                  progress):
+                  progress, config: CoreConfig):
     """Observability judged again at the locked solution; where that determines a direction
     the start did not, the lock is lifted from it and the problem solved again.
 
@@ -120,29 +113,33 @@ def _judged_again(problem, observability, locks, result, scales, nominal, prior_
     informative; a direction the motion does not excite (a spin, a straight line) stays
     undetermined there too (the same thresholds)."""
     problem.factors = [f for f in problem.factors if f not in locks]
-    again = Observability.of_problem(problem, prior_sigma, values=result.values)
+    again = Observability.of_problem(problem, prior_sigma, values=result.values,
+                                     config=config.observability)
     if np.sum(again.observable) <= np.sum(observability.observable):
         problem.factors.extend(locks)
         return observability, result, scales
     problem.values = result.values
     problem.factors.extend(again.lock(nominal))
-    result, scales = solve_with_variance_components(problem, progress=progress)
+    result, scales = solve_with_variance_components(problem, progress=progress,
+                                                    config=config.solver)
     return again, result, scales
 
 
 def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
-                        correct_dilution=True) -> CalibrationResult:
+                        correct_dilution=True,
+                        config: CoreConfig = CoreConfig()) -> CalibrationResult:
     """The batch calibration of a recording's keyframes; correct_dilution: take the wheel
-    noise's regression dilution out of k (core/dilution.py)."""
-    if len(keyframes) < MIN_KEYFRAMES:
+    noise's regression dilution out of k (core/dilution.py); `config`: the developer
+    tuning, each section handed to the function it tunes."""
+    if len(keyframes) < config.estimator.min_keyframes:
         raise CalibrationError(
             f"only {len(keyframes)} scans could be paired with encoder data (need at least "
-            f"{MIN_KEYFRAMES}); check the topic names, joint names and that the clocks of "
-            f"both sensors overlap. Rejections: {rejections or 'none'}"
+            f"{config.estimator.min_keyframes}); check the topic names, joint names and that "
+            f"the clocks of both sensors overlap. Rejections: {rejections or 'none'}"
         )
-    check_wiring(keyframes, params)
+    check_wiring(keyframes, params, config.wiring)
     inputs = graph_mod.GraphInputs.from_keyframes(
-        graph_mod.merge_keyframes(keyframes, params.keyframe_interval))
+        graph_mod.merge_keyframes(keyframes, params.keyframe_interval, config.graph))
     if len(inputs.odo_from) == 0 or len(inputs.laser_from) == 0:
         unconfirmed = rejections is not None and rejections.counts.get("match_unconfirmed", 0)
         hint = (" The scan matches were not confirmed by the point-to-line refinement: the "
@@ -153,21 +150,24 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
             f"laser edges; both are needed.{hint} Rejections: {rejections or 'none'}"
         )
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
-    prior_sigma = graph_mod.prior_sigmas(nominal)
-    problem = graph_mod.build_problem(inputs, params, nominal, correct_dilution=correct_dilution)
+    prior_sigma = graph_mod.prior_sigmas(nominal, config.graph)
+    problem = graph_mod.build_problem(inputs, params, nominal, correct_dilution=correct_dilution,
+                                      config=config.graph, linear=config.linear)
     # Judged at the start (nominal calibration, poses settled on it): observability is a
     # property of the motion, not of one noise realisation; at a fitted optimum an
     # undetermined direction could wander to where the curvature looks informative.
-    observability = Observability.of_settled_problem(problem, prior_sigma)
+    observability = Observability.of_settled_problem(problem, prior_sigma, config.observability)
     # An undetermined direction (standing still, straight lines only, spinning in place)
     # would drift to fit noise, and with it the noise models that depend on it: it is held
     # at nominal. The parameters it moves are reported at nominal with their prior σ.
     locks = observability.lock(nominal)
     problem.factors.extend(locks)
-    result, scales = solve_with_variance_components(problem, progress=progress)
+    result, scales = solve_with_variance_components(problem, progress=progress,
+                                                    config=config.solver)
     if not all(observability.observable):
         observability, result, scales = _judged_again(problem, observability, locks, result,
-                                                      scales, nominal, prior_sigma, progress)
+                                                      scales, nominal, prior_sigma, progress,
+                                                      config)
     # The step a continued solve would still take, from the factorisation the covariance
     # needs anyway: the iteration cap alone says nothing about whether the answer moved.
     remaining, lu = remaining_step(problem, result.values, ["odometry", "laser"])
@@ -176,7 +176,8 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
     blocks = ["odometry", "laser"]
     influence = Influence.of(problem, values, blocks, lu)
     model_cov = observability.reported_covariance(influence.marginal)
-    correlated_cov, _ = chain_correlated_covariance(problem, values, blocks, influence=influence)
+    correlated_cov, _ = chain_correlated_covariance(problem, values, blocks, influence=influence,
+                                                    config=config.solver)
     cov = observability.reported_covariance(
         _at_least(correlated_cov, sandwich_covariance(problem, values, blocks, influence=influence)))
     estimate = observability.reported(graph_mod.calibration_of(values), nominal)
@@ -195,8 +196,8 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
         residual_rms=residual_rms(problem, values),
         variance_scales={k: v for k, v in scales.items()},
         iterations=result.iterations,
-        converged=bool(result.converged
-                       or np.all(np.abs(remaining) < CONVERGED_STEP_SIGMA * sigma)),
+        converged=bool(result.converged or np.all(
+            np.abs(remaining) < config.estimator.converged_step_sigma * sigma)),
         stamps=inputs.stamps,
         poses=values["poses"],
         inputs=inputs,

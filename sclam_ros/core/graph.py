@@ -13,32 +13,24 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from sclam_ros.core import dilution, factors, kinematics, se2
+from sclam_ros.core.config import GraphConfig, LinearConfig
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.problem import CauchyKernel, Problem, Values
 
-# Weak priors on the calibration at its nominal value. They carry no information a real
-# run would notice (σ far beyond any plausible mounting error), but they keep the system
-# well-posed when the motion cannot excite a parameter (driving straight only: no base,
-# no laser offset), and they are the unit the data's information is measured in: a
-# direction with less than 100× the prior's information is undetermined, locked at
-# nominal and its parameters flagged "not observable" (core/observability.py).
-PRIOR_SIGMA_RELATIVE_ODOMETRY = 0.25  # × nominal radius / base
-PRIOR_SIGMA_LASER_XY = 2.0  # m
-PRIOR_SIGMA_LASER_YAW = np.pi / 2  # rad
-
-# Robust kernel for scan matches in whitened units: an ICP that slid along a corridor is
-# a gross outlier and must not drag the calibration. Cauchy (not Huber): its influence
-# decays for residuals far outside, measured on synthetic graphs (test_solver).
-LASER_KERNEL = CauchyKernel(3.0)
-
-
-def prior_sigmas(calibration) -> np.ndarray:
+def prior_sigmas(calibration, config: GraphConfig = GraphConfig()) -> np.ndarray:
+    """σ of the weak priors on the calibration at its nominal value. They carry no
+    information a real run would notice (σ far beyond any plausible mounting error), but
+    they keep the system well-posed when the motion cannot excite a parameter (driving
+    straight only: no base, no laser offset), and they are the unit the data's information
+    is measured in: a direction with too little information beside them is undetermined,
+    locked at nominal and its parameters flagged "not observable" (core/observability.py)."""
     calibration = np.asarray(calibration, float)
     return np.concatenate(
         [
-            PRIOR_SIGMA_RELATIVE_ODOMETRY * np.abs(calibration[:3]),
-            [PRIOR_SIGMA_LASER_XY, PRIOR_SIGMA_LASER_XY, PRIOR_SIGMA_LASER_YAW],
+            config.prior_sigma_relative_odometry * np.abs(calibration[:3]),
+            [config.prior_sigma_laser_xy, config.prior_sigma_laser_xy,
+             config.prior_sigma_laser_yaw],
         ]
     )
 
@@ -51,16 +43,6 @@ def encoder_variance_floor(params) -> float:
     """
     tick = 2 * np.pi / params.ticks_per_revolution if params.ticks_per_revolution > 0 else 1e-4
     return tick**2 / 6.0
-
-
-# Radii and base may not fall below this fraction of nominal: a step there is rejected.
-MIN_ODOMETRY_FRACTION = 0.1
-
-# Gate for trusting a scan match over the wheels when building the initial guess: generous
-# (a nominal calibration may be a few % off), but far below an ICP failure.
-INIT_GATE_M = 0.05
-INIT_GATE_RAD = 0.05
-INIT_GATE_RELATIVE = 0.2
 
 
 @dataclass
@@ -143,28 +125,19 @@ def _path_variance(keyframes, first):
                      if kf.dphi is not None and kf.index - first - 1 >= 0], float)
 
 
-# The sideways path σ of an edge composed of several per-scan arcs, in units of the
-# constant-speed arc's (sync.EncoderStream._path_variance): the arcs run through wheel
-# angles interpolated at the scan stamps (on a cubic between slow samples), so the edge
-# follows most of the path's accelerations. Measured on 8 simulated PowerBot drives at
-# 1 Hz (90 s, seeds 1-8, 720 edges; test_sync._one_hz_edges, sideways error against the
-# truth over the edge's σ, RMS over all edges / those between the 75th and 90th
-# percentile of path variance / those above it): 1.11 / 1.04 / 2.49 without the path
-# variance, 0.65 / 0.40 / 0.51 at scale 1, 0.73 / 0.55 / 0.91 at 0.5, 0.81 / 0.67 / 1.29
-# at 0.3.
-COMPOSED_PATH_SIGMA_SCALE = 0.5
-
-
-def odometry_covariance(inputs: GraphInputs, params, k) -> np.ndarray:
+def odometry_covariance(inputs: GraphInputs, params, k,
+                        config: GraphConfig = GraphConfig()) -> np.ndarray:
     """(m_o, 3, 3) covariance of the odometry edges' motions K(u, k): the wheels' noise
     model (params.wheel_noise, lateral_noise, the encoder's quantisation) plus the
     interpolation variance of the increments (GraphInputs.odo_variance) and the path
-    between encoder samples (GraphInputs.odo_path_variance, COMPOSED_PATH_SIGMA_SCALE
-    where an edge is composed of several arcs)."""
+    between encoder samples (GraphInputs.odo_path_variance, scaled by
+    config.composed_path_sigma_scale where an edge is composed of several arcs: those
+    follow most of the path's accelerations; sync.EncoderStream._path_variance gives the
+    constant-speed arc's)."""
     path = inputs.odo_path_variance
     if path is not None and inputs.odo_parts is not None:
         arcs = np.count_nonzero(np.any(np.asarray(inputs.odo_parts) != 0.0, axis=-1), axis=-1)
-        path = np.where(arcs > 1, COMPOSED_PATH_SIGMA_SCALE**2, 1.0) * path
+        path = np.where(arcs > 1, config.composed_path_sigma_scale**2, 1.0) * path
     return kinematics.motion_covariance(inputs.odo_dphi, k, params.wheel_noise,
                                         encoder_variance_floor(params), params.lateral_noise,
                                         inputs.odo_variance, path, parts=inputs.odo_parts)
@@ -177,7 +150,7 @@ def _node(kf, index):
                     since_sample=kf.since_sample)
 
 
-def merged_keyframe(segment, index):
+def merged_keyframe(segment, index, config: GraphConfig = GraphConfig()):
     """One keyframe standing for a run of consecutive ones (see merge_keyframes): wheel
     increments kept per part (the odometry factor composes their arcs) and summed, chained
     scan matches composed with their covariances added. The edge starts at keyframe
@@ -194,34 +167,28 @@ def merged_keyframe(segment, index):
             z = se2.compose(z, s.laser_motion)
         parts = [np.linalg.inv(s.laser_information) for s in segment]
         kf.laser_from, kf.laser_motion = index - 1, z
-        kf.laser_information = np.linalg.inv(chained_scan_match_covariance(parts))
+        kf.laser_information = np.linalg.inv(chained_scan_match_covariance(parts, config))
     return kf
 
 
-# Lag-1 correlation of consecutive scan-match errors: each scan's own error enters the
-# match before it and the match after it with opposite signs (−0.5 if that were all).
-# Measured −0.41 to −0.47 on the frontend's output
-# (correlated_covariance.sandwich_covariance); the smaller magnitude is used so that the
-# merged covariance errs on the large side.
-SCAN_MATCH_LAG1_CORRELATION = -0.4
-
-
-def chained_scan_match_covariance(parts) -> np.ndarray:
-    """Covariance of a chain of consecutive scan matches: Σ Cᵢ + ρ Σ (Cᵢ + Cᵢ₊₁).
+def chained_scan_match_covariance(parts, config: GraphConfig = GraphConfig()) -> np.ndarray:
+    """Covariance of a chain of consecutive scan matches: Σ Cᵢ + ρ Σ (Cᵢ + Cᵢ₊₁), with ρ
+    config.scan_match_lag1_correlation.
 
     Summing the parts as if independent overstates it: five 0.1 s matches composed into
     one 0.5 s edge have 1.8 C, not 5 C, at ρ = −0.4 (the cross-covariance of neighbours
     taken as ρ times their mean covariance; the rotation between their frames over one
-    edge is neglected). Over-stating it had made the online window's radii σ ~1.4× the
-    scatter they showed (bench/load_change.py) and its change test too weak.
+    edge is neglected); an overstated covariance makes the online window's radii σ larger
+    than their scatter and its change test too weak (docs/decisions/graph.md).
     """
+    rho = config.scan_match_lag1_correlation
     total = np.sum(parts, axis=0)
     for before, after in zip(parts[:-1], parts[1:]):
-        total = total + SCAN_MATCH_LAG1_CORRELATION * (before + after)
+        total = total + rho * (before + after)
     return total
 
 
-def merge_keyframes(keyframes, interval: float) -> list:
+def merge_keyframes(keyframes, interval: float, config: GraphConfig = GraphConfig()) -> list:
     """Fewer, longer edges: consecutive keyframes merged into one per `interval` seconds.
 
     Wheel increments add exactly and chained scan matches compose, so no measurement is
@@ -248,7 +215,7 @@ def merge_keyframes(keyframes, interval: float) -> list:
     """
     if interval <= 0 or len(keyframes) < 2:
         return list(keyframes)
-    merger = KeyframeMerger(interval)
+    merger = KeyframeMerger(interval, config)
     merged = [m for kf in keyframes for m in merger.add(kf)]
     return merged + merger.flush()
 
@@ -261,8 +228,9 @@ class KeyframeMerger:
     the open one from flush() at the end of the data.
     """
 
-    def __init__(self, interval: float):
+    def __init__(self, interval: float, config: GraphConfig = GraphConfig()):
         self.interval = float(interval)
+        self.config = config
         self.reset()
 
     def reset(self):
@@ -300,7 +268,7 @@ class KeyframeMerger:
         return [self._close()] if self._segment else []
 
     def _close(self):
-        kf = merged_keyframe(self._segment, self._count)
+        kf = merged_keyframe(self._segment, self._count, self.config)
         self._count += 1
         self._last = kf
         self._segment = []
@@ -317,7 +285,8 @@ def _after_sample(kf, previous_stamp) -> bool:
     return kf.since_sample is None or kf.stamp - kf.since_sample > previous_stamp
 
 
-def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
+def initial_poses(inputs: GraphInputs, calibration,
+                  config: GraphConfig = GraphConfig()) -> np.ndarray:
     """Initial poses: chained scan matches where they exist, wheel odometry elsewhere.
 
     Scan matches do not depend on the wheel calibration, so a chain of them starts the
@@ -327,7 +296,8 @@ def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
     chain) and Levenberg-Marquardt then crawls.
 
     A scan match that disagrees grossly with the wheels (an ICP failure the robust kernel
-    will later discount) is not trusted for the start; odometry is used there instead.
+    will later discount; config.init_gate_*) is not trusted for the start; odometry is used
+    there instead.
     """
     calibration = np.asarray(calibration, float)
     k, mount = calibration[:3], calibration[3:]
@@ -343,8 +313,10 @@ def initial_poses(inputs: GraphInputs, calibration) -> np.ndarray:
     disagreement = se2.between(from_laser, motion[to])
     step = np.linalg.norm(motion[to, :2], axis=1)
     plausible = ~known[to] | (
-        (np.linalg.norm(disagreement[:, :2], axis=1) < INIT_GATE_M + INIT_GATE_RELATIVE * step)
-        & (np.abs(disagreement[:, 2]) < INIT_GATE_RAD + INIT_GATE_RELATIVE * np.abs(motion[to, 2]))
+        (np.linalg.norm(disagreement[:, :2], axis=1)
+         < config.init_gate_m + config.init_gate_relative * step)
+        & (np.abs(disagreement[:, 2])
+           < config.init_gate_rad + config.init_gate_relative * np.abs(motion[to, 2]))
     )
     motion[to[plausible]] = from_laser[plausible]
     known[to] = True
@@ -371,25 +343,28 @@ def gauge_anchors(inputs: GraphInputs) -> np.ndarray:
 
 
 def build_problem(inputs: GraphInputs, params, calibration, poses=None,
-                  nominal=None, extra_factors=(), correct_dilution=True) -> Problem:
+                  nominal=None, extra_factors=(), correct_dilution=True,
+                  config: GraphConfig = GraphConfig(),
+                  linear: LinearConfig = LinearConfig()) -> Problem:
     """The SCLAM least-squares problem over poses, k = (r_l, r_r, b) and l = (x, y, yaw);
     with correct_dilution, the wheel base's regression dilution taken out of the cost
-    (dilution.py)."""
+    (dilution.py). `linear`: how the problem's normal equations are factorised."""
     calibration = np.asarray(calibration, float)
     nominal = calibration if nominal is None else np.asarray(nominal, float)
     if poses is None:
-        poses = initial_poses(inputs, calibration)
+        poses = initial_poses(inputs, calibration, config)
     values = Values(
         {"poses": poses, "odometry": [calibration[:3]], "laser": [calibration[3:]]},
         angular={"poses": [False, False, True], "laser": [False, False, True]},
         # Radii and wheel base are physical lengths: the solver never steps through zero.
-        lower={"odometry": MIN_ODOMETRY_FRACTION * calibration[:3]},
+        lower={"odometry": config.min_odometry_fraction * calibration[:3]},
     )
-    odometry_cov = odometry_covariance(inputs, params, nominal[:3])
+    odometry_cov = odometry_covariance(inputs, params, nominal[:3], config)
     corrections = [dilution.wheel_noise_correction(
-        inputs, params, calibration[:3], odometry_cov, encoder_variance_floor(params))
+        inputs, params, calibration[:3], odometry_cov, encoder_variance_floor(params),
+        config.max_dilution_shift)
     ] if correct_dilution and len(inputs.odo_from) else []
-    sigma = prior_sigmas(nominal)
+    sigma = prior_sigmas(nominal, config)
     factor_list = [
         factors.OdometryFactor(inputs.odo_from, inputs.odo_from + 1, inputs.odo_dphi,
                                np.linalg.inv(odometry_cov), parts=inputs.odo_parts),
@@ -400,8 +375,11 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
                             name="calibration_prior"),
         *extra_factors,
     ]
+    # The scan matches' robust kernel: an ICP that slid along a corridor is a gross outlier
+    # and must not drag the calibration; Cauchy's influence decays far outside.
     return Problem(values, factor_list, fixed={"poses": gauge_anchors(inputs)},
-                   kernels={"laser": LASER_KERNEL}, corrections=corrections)
+                   kernels={"laser": CauchyKernel(config.laser_kernel_scale)},
+                   corrections=corrections, linear=linear)
 
 
 def calibration_of(values: Values) -> np.ndarray:

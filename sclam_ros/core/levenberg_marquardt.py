@@ -12,6 +12,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from sclam_ros.core.config import SolverConfig
 from sclam_ros.core.linear import LinearSolver, _normal_equations
 from sclam_ros.core.problem import Problem, SolverResult
 
@@ -21,7 +22,7 @@ def _solve_damped(problem, hessian, gradient, damping):
     positive definite."""
     damped = hessian + (sp.diags(damping) if sp.issparse(hessian) else np.diag(damping))
     try:
-        delta = LinearSolver(damped, problem.banded_size).solve(-gradient)
+        delta = LinearSolver(damped, problem.banded_size, problem.linear).solve(-gradient)
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
         return None
     return delta if np.all(np.isfinite(delta)) else None
@@ -49,12 +50,13 @@ def _predicted_decrease(hessian, gradient, delta) -> float:
 
 def levenberg_marquardt(
     problem: Problem,
-    max_iterations: int = 50,
-    relative_tolerance: float = 1e-10,
-    initial_lambda: float = 1e-5,
+    max_iterations: int = SolverConfig.max_iterations,
+    relative_tolerance: float = SolverConfig.relative_tolerance,
+    initial_lambda: float = SolverConfig.initial_lambda,
     progress=None,
 ) -> SolverResult:
-    """Minimise Σ ρ(‖L e‖²) with Marquardt's diagonal damping and an adaptive λ."""
+    """Minimise Σ ρ(‖L e‖²) with Marquardt's diagonal damping and an adaptive λ; the
+    defaults are SolverConfig's (SolverConfig.lm_options gives a config's)."""
     start = time.perf_counter()
     values = problem.values
     system = problem.linear_system(values)

@@ -15,11 +15,8 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from sclam_ros.core.config import LinearConfig
 from sclam_ros.core.problem import System
-
-# Unit columns per block of solves on LinearSolver.inverse_at's sparse-LU path (bounds the
-# memory of each block).
-TRACE_CHUNK = 256
 
 
 class LinearSolver:
@@ -32,14 +29,13 @@ class LinearSolver:
     the band is wide, e.g. with loop closures) grows faster.
     """
 
-    MAX_BANDWIDTH = 90  # scalar columns; 30 poses
-
-    def __init__(self, hessian, banded_size: int):
+    def __init__(self, hessian, banded_size: int, config: LinearConfig = LinearConfig()):
         self.n = banded_size
+        self.config = config
         self._lu = None
         self._dense = None
         if not sp.issparse(hessian):
-            # Up to problem.DENSE_MAX_COLUMNS, one dense Cholesky of the whole H: for the
+            # Up to LinearConfig.dense_max_columns, one dense Cholesky of the whole H: for the
             # online window, building the banded split and its sparse slices costs more
             # Python than the dense factorisation.
             self._dense = scipy.linalg.cho_factor(hessian)
@@ -49,7 +45,7 @@ class LinearSolver:
         coo = hessian[: self.n, : self.n].tocoo()
         upper = coo.col >= coo.row
         bandwidth = int(np.max(coo.col[upper] - coo.row[upper], initial=0))
-        if self.n == 0 or bandwidth > self.MAX_BANDWIDTH:
+        if self.n == 0 or bandwidth > config.max_bandwidth:
             self._lu = spla.splu(hessian)
             return
         bands = np.zeros((bandwidth + 1, self.n))
@@ -64,8 +60,6 @@ class LinearSolver:
     def _solve_banded(self, rhs):
         return scipy.linalg.cho_solve_banded((self._chol, False), rhs)
 
-    REFINEMENT_STEPS = 3
-
     def solve(self, rhs):
         if self._dense is not None:
             return scipy.linalg.cho_solve(self._dense, rhs)
@@ -75,7 +69,7 @@ class LinearSolver:
         # small difference of large numbers and loses digits; iterative refinement
         # against the exact H recovers them (each step costs one more cheap solve).
         x = self._solve_once(rhs)
-        for _ in range(self.REFINEMENT_STEPS):
+        for _ in range(self.config.refinement_steps):
             x = x + self._solve_once(rhs - self._hessian @ x)
         return x
 
@@ -90,8 +84,9 @@ class LinearSolver:
         if self._lu is not None:
             out = np.empty(len(rows))
             needed = np.unique(cols)
-            for start in range(0, len(needed), TRACE_CHUNK):
-                chunk = needed[start:start + TRACE_CHUNK]
+            step = self.config.trace_chunk
+            for start in range(0, len(needed), step):
+                chunk = needed[start:start + step]
                 unit = np.zeros((self._hessian.shape[0], len(chunk)))
                 unit[chunk, np.arange(len(chunk))] = 1.0
                 solved = self.solve(unit)

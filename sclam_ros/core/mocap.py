@@ -22,12 +22,10 @@ import numpy as np
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import dilution, kinematics, se2
+from sclam_ros.core.config import CoreConfig, MocapConfig
 from sclam_ros.core.covariance import marginal_covariance
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.core.variance_components import solve_with_variance_components
-
-# Noise shape of one mocap relative motion (scale estimated by variance components).
-MOCAP_SIGMA = np.array([0.001, 0.001, 0.005])  # m, m, rad
 
 
 @dataclass
@@ -40,7 +38,8 @@ class MocapCalibration:
     wheel_noise_correction: Optional[dict] = None  # dilution.summary
 
 
-def graph_inputs(stamps, ticks, truth, ticks_per_revolution, step=10) -> graph_mod.GraphInputs:
+def graph_inputs(stamps, ticks, truth, ticks_per_revolution, step=10,
+                 config: MocapConfig = MocapConfig()) -> graph_mod.GraphInputs:
     keep = np.arange(0, len(stamps), step)
     angles = np.asarray(ticks, float)[keep] * 2 * np.pi / ticks_per_revolution
     poses = np.asarray(truth, float)[keep]
@@ -53,7 +52,8 @@ def graph_inputs(stamps, ticks, truth, ticks_per_revolution, step=10) -> graph_m
         laser_from=np.arange(n - 1),
         laser_to=np.arange(1, n),
         laser_z=z,
-        laser_info=np.broadcast_to(np.diag(MOCAP_SIGMA**-2.0), (n - 1, 3, 3)).copy(),
+        laser_info=np.broadcast_to(np.diag(np.array(config.motion_sigma) ** -2.0),
+                                   (n - 1, 3, 3)).copy(),
     )
 
 
@@ -65,31 +65,34 @@ def initial_mount_yaw(inputs: graph_mod.GraphInputs, k) -> float:
     return float(np.angle(np.sum(a * np.conj(z))))
 
 
-def build_problem(inputs, params: SclamParams, k, fix_k=False):
+def build_problem(inputs, params: SclamParams, k, fix_k=False,
+                  config: CoreConfig = CoreConfig()):
     """The calibration graph of a run against its motion capture, started at k and the
     closed-form mount yaw; ``fix_k`` holds k there (only the mount and poses move)."""
     k = np.asarray(k, float)
     nominal = np.concatenate([k, [0.0, 0.0, initial_mount_yaw(inputs, k)]])
     problem = graph_mod.build_problem(
-        inputs, params.with_calibration(dict(zip(CALIBRATION_KEYS, nominal))), nominal)
+        inputs, params.with_calibration(dict(zip(CALIBRATION_KEYS, nominal))), nominal,
+        config=config.graph, linear=config.linear)
     if fix_k:
         problem = type(problem)(problem.values, problem.factors,
                                 fixed={**problem.fixed, "odometry": np.array([0])},
                                 kernels=problem.kernels, scales=problem.scales,
-                                corrections=problem.corrections)
+                                corrections=problem.corrections, linear=problem.linear)
     return problem
 
 
 def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=10,
-                                fixed_k=None):
+                                fixed_k=None, config: CoreConfig = CoreConfig()):
     """k = (r_l, r_r, b) and the marker mount from the run; with ``fixed_k``, k is held
     there and only the mount (and the poses) are fitted: how another calibration is
     aligned with this run's motion capture (σ of the held k: 0)."""
-    inputs = graph_inputs(stamps, ticks, truth, params.ticks_per_revolution, step)
+    inputs = graph_inputs(stamps, ticks, truth, params.ticks_per_revolution, step, config.mocap)
     nominal_k = [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base]
     held = fixed_k is not None
-    problem = build_problem(inputs, params, fixed_k if held else nominal_k, fix_k=held)
-    result, scales = solve_with_variance_components(problem)
+    problem = build_problem(inputs, params, fixed_k if held else nominal_k, fix_k=held,
+                            config=config)
+    result, scales = solve_with_variance_components(problem, config=config.solver)
     cov = marginal_covariance(problem, result.values, ["laser"] if held else ["odometry", "laser"])
     sigma = np.sqrt(np.diag(cov))
     return MocapCalibration(

@@ -10,19 +10,22 @@ One decision for the batch calibrator and the online window alike:
         C = (I + A)⁻¹, so an eigenvalue λ of C is 1 / (1 + g) with g the information the
         data adds along that eigen-direction, in units of the prior's.
 
-A direction with g < MIN_INFORMATION_GAIN is undetermined: the data says less about it than
-it would take to shrink the prior σ tenfold (or less than MIN_INFORMATION_GAIN_PER_EDGE per
-edge, a level the noise of the estimated poses alone reaches on a long run). It is locked at
-the nominal (or previously saved) value; the determined directions stay free, so where only a
-combination is missing (spinning in place fixes the radii relative to the base, not their
-common scale) only that combination is held. A parameter is flagged unobservable when locking moves it: when the undetermined
-directions, at their prior σ, leave it at least UNOBSERVED_SIGMA_RATIO of its own prior σ (the
+A direction with g < min_information_gain (ObservabilityConfig) is undetermined: the data says
+less about it than it would take to shrink the prior σ tenfold (or less than
+min_information_gain_per_edge per edge, a level the noise of the estimated poses alone reaches
+on a long run). It is locked at the nominal (or previously saved) value; the determined
+directions stay free, so where only a combination is missing (spinning in place fixes the
+radii relative to the base, not their common scale) only that combination is held. A
+parameter is flagged unobservable when locking moves it: when the undetermined directions, at
+their prior σ, leave it at least unobserved_sigma_ratio of its own prior σ (the
 same tenfold: a parameter shares the threshold of the directions it is made of).
 
 Why the covariance and not the information: C's eigenvalues near 1 (the undetermined ones)
 are the large ones, which an eigen-decomposition gets to full relative precision however
 well the others are determined; Λ = Σ⁻¹ would put them at the noise floor of the best
 determined direction (the laser yaw, ~10⁸ × its prior's information on a long run).
+
+Why the thresholds are where they are: docs/decisions/observability.md.
 """
 from __future__ import annotations
 
@@ -30,28 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sclam_ros.core.config import ObservabilityConfig
 from sclam_ros.core.covariance import marginal_covariance
 from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.marginal import CalibrationPriorFactor, Gaussian
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.problem import Problem
-
-# An undetermined direction: the data adds less than this many times the prior's information
-# along it (its σ would shrink less than tenfold). Measured on simulated 60 s PowerBot drives
-# (poses settled, see settle_poses): the missing directions of straight, spin-only and
-# standing-still drives carry gains of 0-22, every direction of the random route ≥ 3400.
-MIN_INFORMATION_GAIN = 100.0
-# ... and less than this many times the prior's per measured edge of the graph. Information
-# evaluated at estimated poses is never exactly zero: their noise excites the Jacobians a
-# little per edge, so on a long enough run even a direction nothing excites would pass a
-# fixed threshold. Measured: ≤ 0.09 per edge for the missing directions (spin, straight),
-# ≥ 14 per edge for the least excited direction of the 60 s random route.
-MIN_INFORMATION_GAIN_PER_EDGE = 1.0
-# A parameter the undetermined directions leave this uncertain (fraction of its prior σ) is
-# not observed: the same tenfold as MIN_INFORMATION_GAIN, per parameter.
-UNOBSERVED_SIGMA_RATIO = MIN_INFORMATION_GAIN ** -0.5
-# A locked direction may move by this fraction of its (whitened) prior σ.
-LOCK_SIGMA_RATIO = 1e-6
 
 
 @dataclass(frozen=True)
@@ -61,11 +48,14 @@ class Observability:
     directions: np.ndarray  # (6, 6) columns: the eigen-directions of C, whitened
     observable: np.ndarray  # (6,) bool per CALIBRATION_KEYS
     threshold: float  # the gain a determined direction has at least
+    config: ObservabilityConfig = ObservabilityConfig()  # the thresholds judged by, the lock's σ
 
     @classmethod
-    def from_covariance(cls, covariance, prior_sigma, edges: int = 0) -> "Observability":
-        """`edges`: measured edges the covariance comes from (MIN_INFORMATION_GAIN_PER_EDGE)."""
-        threshold = max(MIN_INFORMATION_GAIN, MIN_INFORMATION_GAIN_PER_EDGE * edges)
+    def from_covariance(cls, covariance, prior_sigma, edges: int = 0,
+                        config: ObservabilityConfig = ObservabilityConfig()) -> "Observability":
+        """`edges`: measured edges the covariance comes from
+        (config.min_information_gain_per_edge)."""
+        threshold = max(config.min_information_gain, config.min_information_gain_per_edge * edges)
         prior_sigma = np.asarray(prior_sigma, float)
         whitened = np.asarray(covariance, float) / np.outer(prior_sigma, prior_sigma)
         values, vectors = np.linalg.eigh(0.5 * (whitened + whitened.T))
@@ -74,23 +64,26 @@ class Observability:
         gains, vectors = gains[order], vectors[:, order]
         missing = vectors[:, gains < threshold]
         unresolved = np.sqrt(np.sum(missing**2, axis=1))  # in units of the prior σ
-        return cls(prior_sigma, gains, vectors, unresolved < UNOBSERVED_SIGMA_RATIO, threshold)
+        return cls(prior_sigma, gains, vectors, unresolved < config.unobserved_sigma_ratio,
+                   threshold, config)
 
     @classmethod
-    def of_problem(cls, problem, prior_sigma, values=None) -> "Observability":
+    def of_problem(cls, problem, prior_sigma, values=None,
+                   config: ObservabilityConfig = ObservabilityConfig()) -> "Observability":
         """Judged on a problem's graph at `values` (default: its current values). The problem
         must hold no lock: a lock is information the data did not give."""
         values = problem.values if values is None else values
         edges = sum(len(f) for f in problem.factors if f.measurement)
         return cls.from_covariance(
-            marginal_covariance(problem, values, ["odometry", "laser"]), prior_sigma, edges)
+            marginal_covariance(problem, values, ["odometry", "laser"]), prior_sigma, edges, config)
 
     @classmethod
-    def of_settled_problem(cls, problem, prior_sigma) -> "Observability":
+    def of_settled_problem(cls, problem, prior_sigma,
+                           config: ObservabilityConfig = ObservabilityConfig()) -> "Observability":
         """Judged with the poses first settled at the calibration as it is (see settle_poses);
         the problem's values become the settled ones, a better start for its own solve."""
-        problem.values = settle_poses(problem)
-        return cls.of_problem(problem, prior_sigma)
+        problem.values = settle_poses(problem, config)
+        return cls.of_problem(problem, prior_sigma, config=config)
 
     @property
     def undetermined(self) -> np.ndarray:
@@ -107,8 +100,8 @@ class Observability:
         if missing.shape[1] == 0:
             return []
         unwhiten = 1.0 / self.prior_sigma
-        information = (LOCK_SIGMA_RATIO**-2.0) * (unwhiten[:, None] * (missing @ missing.T)
-                                                   * unwhiten[None, :])
+        information = (self.config.lock_sigma_ratio**-2.0) * (
+            unwhiten[:, None] * (missing @ missing.T) * unwhiten[None, :])
         values = np.asarray(values, float)
         factor = CalibrationPriorFactor(Gaussian(information, information @ values), mean=values)
         factor.name = "locked_calibration"
@@ -131,22 +124,22 @@ class Observability:
         return cov
 
 
-def settle_poses(problem, max_iterations: int = 10):
+def settle_poses(problem, config: ObservabilityConfig = ObservabilityConfig()):
     """The problem's values with the poses at their optimum for the calibration held as it is.
 
     The information about a direction the motion does not excite is zero only at poses that
     show no motion the robot did not make. Poses chained from the scan matches carry their
     noise: standing still, their small jitter looks like motion whose laser Jacobians
     inform the laser yaw; spinning in place, the laser offset rotated with its yaw. That
-    spurious information grows with every edge (measured on 60 s PowerBot drives: 3 and
-    0.9 × the prior's per edge, gains of 742 and 216 where MIN_INFORMATION_GAIN is 100).
-    Settled on the wheels too, which see the robot stand or spin more precisely, the poses
-    lose most of it (gains 0.01 and 22 on the same drives).
+    spurious information grows with every edge. Settled on the wheels too, which see the
+    robot stand or spin more precisely, the poses lose most of it (measured:
+    docs/decisions/observability.md). At most config.settle_iterations LM iterations, to
+    config.settle_tolerance.
     """
     held = dict(problem.fixed)
     held["odometry"] = np.arange(len(problem.values["odometry"]))
     held["laser"] = np.arange(len(problem.values["laser"]))
     poses_only = Problem(problem.values, problem.factors, fixed=held, kernels=problem.kernels,
-                         scales=problem.scales)
-    return levenberg_marquardt(poses_only, max_iterations=max_iterations,
-                               relative_tolerance=1e-6).values
+                         scales=problem.scales, linear=problem.linear)
+    return levenberg_marquardt(poses_only, max_iterations=config.settle_iterations,
+                               relative_tolerance=config.settle_tolerance).values

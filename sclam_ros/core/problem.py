@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from sclam_ros.core import se2
+from sclam_ros.core.config import LinearConfig
 
 # --- robust kernels ----------------------------------------------------------------------
 # ρ(s) of the squared whitened residual norm s; the IRLS weight is ρ'(s).
@@ -134,17 +135,11 @@ class Layout:
         return offset + np.arange(len(rows) * self.dims[name])
 
 
-# Up to this many columns the linear system is dense: for a system the size of the online
-# window (~45-75 poses, 141-231 columns), scipy.sparse's constructors and conversions cost
-# more than the dense BLAS work.
-DENSE_MAX_COLUMNS = 400
-
-
 @dataclass
 class System:
     """The whitened, robustly weighted linear system at one linearisation point."""
 
-    jacobian: "sp.csr_matrix | np.ndarray"  # dense up to DENSE_MAX_COLUMNS columns
+    jacobian: "sp.csr_matrix | np.ndarray"  # dense up to LinearConfig.dense_max_columns columns
     residual: np.ndarray  # whitened and weighted
     cost: float  # Σ ρ(s) over all edges (the robust cost)
     per_factor: dict  # factor name -> dict(cost, chi2, count, dim, weights, squared_residual_sum)
@@ -173,8 +168,9 @@ class Problem:
     """Factors + initial values + which rows are fixed + a robust kernel per factor name."""
 
     def __init__(self, values: Values, factors, fixed=None, kernels=None, scales=None,
-                 corrections=()):
+                 corrections=(), linear: LinearConfig = LinearConfig()):
         self.values = values
+        self.linear = linear  # how its normal equations are stored and factorised
         self.factors = list(factors)
         # Terms of the cost that are not squared residuals, linear in one block's first
         # row: `block`, term(values, scales) -> (cost, gradient); e.g.
@@ -241,7 +237,7 @@ class Problem:
             row0 += m * d
         rows, cols, data = (np.concatenate(rows_all), np.concatenate(cols_all),
                             np.concatenate(data_all))
-        if self.layout.size <= DENSE_MAX_COLUMNS:
+        if self.layout.size <= self.linear.dense_max_columns:
             # bincount sums entries that two blocks put in the same place (np.add.at does
             # too, more slowly).
             jacobian = np.bincount(rows * self.layout.size + cols, data,

@@ -10,52 +10,48 @@ from __future__ import annotations
 
 import numpy as np
 
+from sclam_ros.core.config import SolverConfig
 from sclam_ros.core.covariance import Influence, absorbed_trace, factorize_information, redundancy_by_factor
 from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.problem import Problem, SolverResult, Values
 
-# A group keeps its stated noise model where its redundancy is below this share of its size
-# (_variance_ratios).
-MIN_REDUNDANCY_SHARE = 0.05
-# A group whose χ²/r is outside this band once the rounds are used up has not settled
-# (solve_with_variance_components). Groups that converge slowly end within 0.9-1.1.
-UNSETTLED_RATIO = (0.7, 1.4)
-# A group whose redundancy at its estimated scale is below this fraction of its redundancy
-# at the stated model has come to pin the poses its residuals are measured against.
-COLLAPSED_REDUNDANCY = 0.5
 
-
-def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance: float = 0.02,
-                                   progress=None, **lm_options):
+def solve_with_variance_components(problem: Problem, progress=None,
+                                   config: SolverConfig = SolverConfig()):
     """LM, then iterated variance component estimation (Förstner / Helmert type).
 
     Each factor type's stated covariance is only a model shape; its overall scale is
     estimated from the data as σ̂²_g = χ²_g / r_g, with r_g the group's redundancy. The
     groups are re-weighted and the problem re-solved until the factors settle (a fixed
-    point where every group's χ² matches its redundancy). Returns the final result and the
-    variance scales, which `problem.scales` also holds afterwards.
+    point where every group's χ² matches its redundancy, within config.variance_tolerance,
+    for at most config.variance_rounds). Returns the final result and the variance scales,
+    which `problem.scales` also holds afterwards.
     """
+    lm_options = config.lm_options()
     result = levenberg_marquardt(problem, progress=progress, **lm_options)
     first_round = None  # the scales after one round (the one-step estimate)
     first_redundancy = None  # the redundancies that round measured them with
     rounds_used_up = False
-    for _ in range(rounds):
-        ratios, redundancy = _variance_ratios(problem, result.values)
+    step_low, step_high = config.variance_step_clip
+    scale_low, scale_high = config.variance_scale_bounds
+    for _ in range(config.variance_rounds):
+        ratios, redundancy = _variance_ratios(problem, result.values, config)
         for name, ratio in ratios.items():
             # Clamp a round's step: far from the fixed point one group can absorb the
             # other's residuals, and an unclamped step overshoots.
             problem.scales[name] = float(np.clip(
-                problem.scales.get(name, 1.0) * np.clip(ratio, 0.2, 5.0), 1e-4, 1e4))
+                problem.scales.get(name, 1.0) * np.clip(ratio, step_low, step_high),
+                scale_low, scale_high))
         if first_round is None:
             first_round = {name: problem.scales[name] for name in ratios}
             first_redundancy = redundancy
-        if all(abs(ratio - 1.0) <= tolerance for ratio in ratios.values()):
+        if all(abs(ratio - 1.0) <= config.variance_tolerance for ratio in ratios.values()):
             break
         problem.values = result.values
         result = levenberg_marquardt(problem, progress=progress, **lm_options)
     else:
         rounds_used_up = True
-        ratios, redundancy = _variance_ratios(problem, result.values)
+        ratios, redundancy = _variance_ratios(problem, result.values, config)
     # A group still far from its fixed point when the rounds are used up is running away,
     # not settling. With an odometry model that misfits (1 Hz encoders), the scan matches'
     # scale falls round after round far below their true errors: the poses follow the
@@ -66,8 +62,9 @@ def solve_with_variance_components(problem: Problem, rounds: int = 6, tolerance:
     # Such a group keeps its one-step estimate, which errs on the safe side.
     def is_running_away(name):
         if name in ratios:
-            return not UNSETTLED_RATIO[0] <= ratios[name] <= UNSETTLED_RATIO[1]
-        return rounds_used_up or redundancy[name] < COLLAPSED_REDUNDANCY * first_redundancy[name]
+            return not config.unsettled_ratio[0] <= ratios[name] <= config.unsettled_ratio[1]
+        return (rounds_used_up
+                or redundancy[name] < config.collapsed_redundancy * first_redundancy[name])
 
     running_away = [name for name in first_round if is_running_away(name)]
     if running_away:
@@ -112,9 +109,10 @@ def settle_corrections(problem: Problem, result: SolverResult, solve) -> SolverR
     return result
 
 
-def _variance_ratios(problem: Problem, values: Values) -> tuple:
+def _variance_ratios(problem: Problem, values: Values, config: SolverConfig) -> tuple:
     """(χ²_g / r_g of each measurement group whose noise the data can reveal, r_g of every
-    group)."""
+    group). A group keeps its stated noise model where its redundancy is below
+    config.min_redundancy_share of its size."""
     redundancy, _ = redundancy_by_factor(problem, values)
     measured = {f.name for f in problem.factors if f.measurement}
     ratios = {}
@@ -128,15 +126,16 @@ def _variance_ratios(problem: Problem, values: Values) -> tuple:
         # near its true value (test_variance_components); held at the stated model
         # (scale 1) its σ would be 1.6 times too large.
         dim = sum(len(f) * f.edge_dim for f in problem.factors if f.name == name)
-        if name in measured and r >= max(3.0, MIN_REDUNDANCY_SHARE * dim):
+        if name in measured and r >= max(3.0, config.min_redundancy_share * dim):
             ratios[name] = float(chi2 / r)
     return ratios, {name: r for name, (r, _) in redundancy.items()}
 
 
-def component_scales(influence: Influence, start: int, stop: int, d: int) -> np.ndarray:
+def component_scales(influence: Influence, start: int, stop: int, d: int,
+                     config: SolverConfig = SolverConfig()) -> np.ndarray:
     """Noise scale per component (d,) of a factor's whitened rows start:stop: each
     component's squared residuals over its redundancy, n − tr(J_c H⁻¹ J_cᵀ), where that is
-    at least MIN_REDUNDANCY_SHARE of its n rows; else 1.
+    at least config.min_redundancy_share of its n rows; else 1.
 
     Variance components give a factor one scale; the shape of its covariance is the stated
     model's. The odometry's sideways part has its own parameter (lateral_noise), and the
@@ -153,6 +152,6 @@ def component_scales(influence: Influence, start: int, stop: int, d: int) -> np.
         rows = jacobian[c::d]
         n = rows.shape[0]
         redundancy = n - absorbed_trace(rows, influence.lu)
-        if redundancy >= MIN_REDUNDANCY_SHARE * n and redundancy > 0:
+        if redundancy >= config.min_redundancy_share * n and redundancy > 0:
             scales[c] = float(np.sum(residual[:, c] ** 2)) / redundancy
     return scales

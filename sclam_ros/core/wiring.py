@@ -13,7 +13,8 @@ decides the turning axis as clearly as the forward one. In the (v, d) axes a swa
 wheels reverses d; both encoders backwards reverse v and d; one encoder backwards exchanges
 v and d (the wheels report turning while the laser sees straight travel). The forward
 direction of the laser is taken from the nominal laser yaw, which must be within 90° of the
-truth; the turning direction needs no calibration at all.
+truth; the turning direction needs no calibration at all. The thresholds (WiringConfig) and
+the measurements behind them: docs/decisions/wiring.md.
 """
 from __future__ import annotations
 
@@ -23,26 +24,8 @@ from itertools import permutations, product
 import numpy as np
 
 from sclam_ros.core import se2
+from sclam_ros.core.config import WiringConfig
 from sclam_ros.core.params import CALIBRATION_KEYS
-
-# The encoders contradict the laser when another wiring explains the two axes better than
-# the configured one by this much (the score is a sum of two correlations: 2 = perfect).
-# One reversed axis with a correlation of −0.5 already counts 1; noise on a few hundred
-# scan pairs correlates by ~0.1. With one encoder backwards the configured wiring's two
-# partial correlations are what is left of an axis after the other is taken out: measured
-# 0.47 and 0.57 on a 25 s drive of 94 scan pairs (keyframes 0.3 s apart) against 2.00 for
-# the right wiring, a gap of 0.96.
-MIN_SCORE_GAP = 0.8
-# Wirings scoring within this of the best cannot be told apart by the motion (a spin
-# in place has no forward travel to tell a swap from both encoders backwards).
-TIE = 0.2
-MIN_PAIRS = 20
-# An axis the laser saw the robot move little along decides no sign (its correlation is
-# noise): it needs this share of the other axis' travel and this much in all (m; turning
-# counts as θ·b/2, the wheels' travel from it). Measured on 25 s simulated drives: turning
-# 0.77 m of 8 m (10 %) decides a swap at −0.997; straight only, 0.01 m of 8.6 m.
-MIN_AXIS_SHARE = 0.02
-MIN_AXIS_TRAVEL = 0.2
 
 # (v, d) = (forward travel, turning θ·b/2) of the (left, right) wheel travel.
 _TO_AXES = np.array([[0.5, 0.5], [-0.5, 0.5]])
@@ -129,25 +112,28 @@ def _explanation(wiring, params) -> str:
     return " and ".join(parts) + ": set " + ", ".join(f"{k}: {v}" for k, v in fix.items())
 
 
-def wiring_problem(keyframes, params):
+def wiring_problem(keyframes, params, config: WiringConfig = WiringConfig()):
     """None if the encoders move the way the laser sees the robot move; else the reason, one
-    line, naming the parameters that fix it."""
+    line, naming the parameters that fix it. An axis the laser saw the robot move little
+    along decides no sign (its correlation is noise)."""
     calibration = [getattr(params, key) for key in CALIBRATION_KEYS]
     wheels, laser = paired_travel(keyframes, calibration)
-    if len(wheels) < MIN_PAIRS:
+    if len(wheels) < config.min_pairs:
         return None
     agreement = axis_agreement(wheels, laser)
     travel = np.abs(laser @ _TO_AXES.T).sum(0)
-    agreement[:, travel < np.maximum(MIN_AXIS_SHARE * travel.max(), MIN_AXIS_TRAVEL)] = 0.0
+    agreement[:, travel < np.maximum(config.min_axis_share * travel.max(),
+                                     config.min_axis_travel)] = 0.0
     scored = []
     for wiring in _wirings():
         on_axes = _TO_AXES @ wiring @ np.linalg.inv(_TO_AXES)  # entries 0 or ±1
         scored.append((float(np.sum(on_axes * agreement)), wiring, on_axes))
     configured = scored[0][0]  # _wirings() starts with the identity
     best = max(score for score, _, _ in scored)
-    if best - configured <= MIN_SCORE_GAP:
+    if best - configured <= config.min_score_gap:
         return None
-    candidates = [(wiring, on_axes) for score, wiring, on_axes in scored if score >= best - TIE]
+    candidates = [(wiring, on_axes) for score, wiring, on_axes in scored
+                  if score >= best - config.tie]
     on_axes = max(scored, key=lambda item: item[0])[2]
     if on_axes[0, 0]:
         seen = [f"{axis} reversed (correlation {agreement[i, i]:+.2f})"

@@ -160,7 +160,7 @@ def calibrate_tuples(tuples: Tuples, nominal=None) -> CensiResult:
     lin = laser.linearize(values)
     whitened = np.einsum("mij,mj->mi", lin.sqrt_information, lin.residual)
     squared = np.einsum("mi,mi->m", whitened, whitened) / problem.scales.get("laser", 1.0)
-    weights = graph_mod.LASER_KERNEL.weight(squared)
+    weights = problem.kernel(laser).weight(squared)
     return CensiResult(
         estimate=graph_mod.calibration_of(values),
         covariance=cov,
