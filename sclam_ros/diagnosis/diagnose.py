@@ -8,7 +8,7 @@ Selection never rests on the in-sample cost (an extra parameter always lowers it
 effect joins the model only if, fitted on top of the effects already selected, (1) it
 lowers the held-out error of time-block cross-validation: the calibration and effects
 are fitted on all but one fold of the recording (a contiguous block for mean effects,
-blocks spread over the run for noise effects: NOISE_FOLDS, NOISE_FOLD_BLOCKS), and the
+blocks spread over the run for noise effects: SelectionConfig), and the
 laser-vs-odometry disagreement of the held-out fold's edges is scored, and (2) its
 likelihood-ratio statistic on the whole recording clears the BIC penalty dim·ln(edges)
 (for an effect found by a search, the held-out likelihood ratio against ln(edges)). Of
@@ -18,6 +18,7 @@ the others leaves (see _stepwise_selection).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,7 @@ from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.variance_components import solve_with_variance_components
 from sclam_ros.diagnosis import identifiability
+from sclam_ros.diagnosis.config import DiagnoseConfig
 from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise
 from sclam_ros.diagnosis.regressors import regressors
 from sclam_ros.diagnosis.wall_map import WallMap
@@ -44,39 +46,8 @@ ERROR_METRIC = (
     "each held-out time block ({folds}-fold contiguous-block cross-validation, calibration "
     "and effects fitted on the other blocks; a noise effect's evidence: {noise_folds} "
     "folds of {spread} blocks each, spread over the run): 0.5·(ρ(dᵀΣ⁻¹d) + ln det Σ), Σ the fitted "
-    "odometry + scan-match covariance in the laser frame, ρ the graph's Cauchy kernel (c = 3)"
+    "odometry + scan-match covariance in the laser frame, ρ the graph's Cauchy kernel (c = {c:g})"
 )
-
-CAUCHY_C = 3.0
-# Effects tried by default: the whole library. scan_distortion models a moving sweep by
-# terms the radii cannot mimic and stays unselected on runs without a sweep (simulated
-# 90 s runs, none, 20 ms clock offset, lateral slip: held-out gain −0.017, −0.050,
-# −0.063 nats/edge, likelihood ratio ≤ 2.5 against a BIC penalty of 23.6).
-DEFAULT_CANDIDATES = tuple(LIBRARY)
-FOLDS = 5
-# Noise effects are judged on folds each made of this many blocks spread over the run
-# (fold k: blocks k, k + FOLDS, ...), mean effects on contiguous blocks. A region's
-# noise can only be learnt from training data that drove there: one room is visited in
-# one or two stretches of the run, so a contiguous fold holding it out has no carpet to
-# learn from. The disagreements' noise is independent from one block to the next, so
-# spread folds do not leak it; a mean effect's residuals drift slowly along the run, and
-# spread folds did leak those (one false selection more on each of speed_radius,
-# time_offset and scan_motion over 5 seeds when all effects were judged on them).
-# NOISE_FOLDS such folds. More folds keep more of a once-visited room in each training
-# set but score other edges: with 10 (bench/diagnose_effects.py, seeds 1-10) the carpet
-# of seed 6 was selected (not with 5: its training folds found no room), while the
-# half-route floor of test_diagnose_library lost its held-out gain (+0.045 ± 0.016 →
-# −0.000 ± 0.018 nats/edge) and a 90 s sweep run (scan_motion seed 10) took on
-# noise_vs_acceleration as well. Neither count is better; 5 stays.
-# Noise effects scored on shorter edges than the calibration's (merged every 0.2 s
-# against 0.5 s, the fits left on the calibration's; the same floor cut into more edges
-# gives more independent draws of the slip) were tried with bench/diagnose_effects.py: on
-# one room's carpet the likelihood ratios rose (seeds 1-5: 23-42 against 14.5-39) and
-# seed 5's region overlap went 0.75 → 0.99, but seeds 1 and 3 went 0.88 / 0.94 → 0.78 /
-# 0.80 (the metres by a door, crossed slowly, fell on either side), and lateral_slip's
-# seed 3 took noise_vs_turn_rate (LR 7.7 against 6.4). Not adopted.
-NOISE_FOLD_BLOCKS = 4
-NOISE_FOLDS = 5
 
 
 @dataclass
@@ -183,8 +154,7 @@ class Disagreement:
         scale = np.reshape(np.asarray(wheel_scale, float), (-1, 1, 1))
         cov = self.wheel_cov * scale + self.fixed_cov
         sq = np.einsum("mi,mij,mj->m", self.d, np.linalg.inv(cov), self.d)
-        rho = CAUCHY_C**2 * np.log1p(sq / CAUCHY_C**2)
-        return 0.5 * (rho + np.linalg.slogdet(cov)[1])
+        return 0.5 * (graph_mod.LASER_KERNEL.rho(sq) + np.linalg.slogdet(cov)[1])
 
 
 @dataclass
@@ -194,9 +164,7 @@ class OdometryCovariance:
     A noise effect is a floor or a speed at which the wheels slip more: it scales the
     wheel noise (params.wheel_noise), not the sideways slip that keeps the edges full rank,
     the encoders' quantisation or the interpolation between slow samples. Scaling the
-    whole covariance diluted the effect into those parts: on one room's carpet
-    (`python bench/diagnose_effects.py --scenarios carpet,clean --seeds 10`) 6 of the 9
-    runs that enter the room selected it, against 8 of 9 scaling the wheels' part."""
+    whole covariance diluted the effect into those parts (docs/decisions/diagnose.md)."""
 
     total: np.ndarray  # (m_o, 3, 3) graph.odometry_covariance
     wheels: np.ndarray  # (m_o, 3, 3) its wheel-noise part
@@ -241,11 +209,11 @@ def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=()):
     return dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
 
 
-def _fit_noise(noise, fit: Fit, mech, inputs, edges: Edges, odo_cov):
-    """Fit the noise effects to the disagreement of `edges` under `fit`; the NLL before
-    and after (per edge)."""
+def _fit_noise(noise, fit: Fit, mech, inputs, edges: Edges, odo_cov, rounds: int):
+    """Fit the noise effects to the disagreement of `edges` under `fit` (`rounds` of
+    coordinate descent, noise_model.fit_noise); the NLL before and after (per edge)."""
     dis = disagreement(fit, mech, inputs, edges, odo_cov)
-    fit_noise(noise, edges.pose_i, edges.pose_j, dis.nll)
+    fit_noise(noise, edges.pose_i, edges.pose_j, dis.nll, rounds)
     return dis.nll(), dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
 
 
@@ -278,11 +246,12 @@ class _Models:
     spread_folds: list  # blocks spread over the run: noise effects
     regs: dict = field(default_factory=dict)
     edge_reg: np.ndarray = None
+    config: DiagnoseConfig = field(default_factory=DiagnoseConfig)
     whole: dict = field(default_factory=dict)
     heldout: dict = field(default_factory=dict)
 
     def effects(self, names):
-        return [LIBRARY[n](self.data) for n in names]
+        return [LIBRARY[n](self.data, self.config) for n in names]
 
     def split_effects(self, names):
         """(mechanical effects, noise effects), fresh instances of `names`."""
@@ -297,7 +266,8 @@ class _Models:
             fit = _fit_effects(self.base, mech) if mech else self.base
             cost = fit.cost
             if noise:  # 2·ΔNLL: the same scale as the graph's χ²-type cost
-                before, after = _fit_noise(noise, fit, mech, self.inputs, self.edges, self.odo_cov)
+                before, after = _fit_noise(noise, fit, mech, self.inputs, self.edges, self.odo_cov,
+                                           self.config.noise.fit_rounds)
                 cost -= 2.0 * float(np.sum(before - after))
             self.whole[key] = (fit, noise, cost)
         return self.whole[key]
@@ -314,18 +284,20 @@ class _Models:
         the mechanical effects of `names` fitted on the whole run ({} if none is left)."""
         fit, residuals = self.odometry_residuals(names)
         motion = kinematics.forward(self.inputs.odo_dphi, fit.values["odometry"][0])
-        return regressor_shares(residuals, self.regs, self.edge_reg, motion)[0]
+        return regressor_shares(residuals, self.regs, self.edge_reg, motion,
+                                self.config.structure)[0]
 
     def mean_structure(self, names) -> list:
         """Significant dependence of the odometry residuals' mean on a regressor
         (autocorrelation aside) left by the mechanical effects of `names`, fitted on the
         whole run. Only the odometry's: the noise effects scale the odometry's covariance,
-        and the laser residuals carry a dependence on the change of wheel speed / the
-        angular acceleration on some routes with no effect at all (simulated clean runs,
-        seeds 2 and 4 of bench/diagnose_effects.py: the scan matcher's, not the wheels')."""
+        and the laser residuals depend on the change of wheel speed / the angular
+        acceleration on some routes with no effect at all (the scan matcher's, not the
+        wheels'; docs/decisions/diagnose.md)."""
         residuals = self.odometry_residuals(names)[1]
-        tests = residual_tests(residuals, self.regs, {c: self.edge_reg for c in residuals})
-        return [t for t in significant(tests) if t["regressor"] != "lag"]
+        tests = residual_tests(residuals, self.regs, {c: self.edge_reg for c in residuals},
+                               self.config.structure)
+        return [t for t in significant(tests, self.config.structure) if t["regressor"] != "lag"]
 
     def heldout_nll(self, names, spread=False):
         """Per-edge NLL of every held-out block, concatenated in fold order, on the
@@ -337,7 +309,8 @@ class _Models:
                 mech, noise = self.split_effects(names)  # noise effects are fitted per fold
                 fit = _fit_effects(fold.train, mech) if mech else fold.train
                 if noise:
-                    _fit_noise(noise, fit, mech, self.inputs, fold.train_edges, self.odo_cov)
+                    _fit_noise(noise, fit, mech, self.inputs, fold.train_edges, self.odo_cov,
+                               self.config.noise.fit_rounds)
                 per_fold.append(edge_nll(fit, mech, self.inputs, fold.test, self.odo_cov, noise))
             self.heldout[key] = np.concatenate(per_fold)
         return self.heldout[key]
@@ -386,13 +359,15 @@ def _evaluate(models: _Models, selected, name, n_edges) -> dict:
     heldout_lr = 2.0 * float(gain.sum())
     heldout_penalty = float(np.log(n_edges)) if candidate.searched else None
     value, sigma, params = _effect_value(models, fit, noise, name)
-    ident = identifiability.check(candidate, models.effects(selected), fit, noise, models.edges)
-    # The held-out gain must exceed its own standard error, not just 0: on clean 90 s
-    # recordings a clock offset of 2-3 σ of noise passed with a gain of 0.85 standard errors.
+    ident_config = models.config.identifiability
+    ident = identifiability.check(candidate, models.effects(selected), fit, noise, models.edges,
+                                  ident_config)
+    # The held-out gain must exceed its own standard error, not just 0: a clock offset of
+    # a few σ of noise otherwise passes on clean recordings (docs/decisions/diagnose.md).
     evidence_passes = bool(gain.mean() > _standard_error(gain) and lr > bic
                            and (heldout_penalty is None or heldout_lr > heldout_penalty))
     # A variance model fitted over an unexplained mean takes the mean's squared error for
-    # noise (a radius growing with speed passed for noise growing with the turn rate), so
+    # noise (a radius growing with speed passes for noise growing with the turn rate), so
     # noise effects wait until no mean structure is left.
     mechanical = [n for n in selected if LIBRARY[n].kind != "noise"]
     stand_in = _stand_in(models, mechanical, candidate)
@@ -409,17 +384,17 @@ def _evaluate(models: _Models, selected, name, n_edges) -> dict:
             "identifiability": ident, "evidence_passes": evidence_passes,
             "blocked_by_mean_structure": blocked, "stand_in_for": stand_in,
             "describe": next((e.describe() for e in noise if e.name == name), {}),
-            "passes": (evidence_passes and identifiability.separable(ident) and not blocked
-                       and stand_in is None)}
+            "passes": (evidence_passes and identifiability.separable(ident, ident_config)
+                       and not blocked and stand_in is None)}
 
 
 def _stand_in(models: _Models, mechanical, candidate):
     """The regressor a mean effect would only stand in for, or None: one outside its
     signature that explains more of the odometry's structure (left by the selected
     mechanical effects) than its signature does. A wheel radius growing with speed, on a
-    drive whose speed changes over the run, looks like a radius drifting in time: on 2 of
-    5 simulated runs radius_drift passed every other test, while the speed explained
-    1.2-1.4 times what the time did (a true drift: the best other regressor 0.45 times)."""
+    drive whose speed changes over the run, looks like a radius drifting in time, and
+    radius_drift passes every other test there while the speed explains more than the
+    time does (docs/decisions/diagnose.md)."""
     if not candidate.signature:
         return None
     shares = models.shares(mechanical)
@@ -438,7 +413,7 @@ def _effect_value(models: _Models, fit: Fit, noise, name):
     fitted = next((e for e in noise if e.name == name), None)
     if fitted is not None:
         return fitted.value(), fitted.value_sigma(), None
-    effect = LIBRARY[name](models.data)
+    effect = models.effects([name])[0]
     p = fit.values[name][0]
     cov = marginal_covariance(fit.problem, fit.values, [name])
     pick = int(np.argmax(np.abs(p))) if effect.dim > 1 else 0
@@ -465,6 +440,7 @@ def _stepwise_selection(models: _Models, names, n_edges, say):
     Returns the selected names, per effect the evidence of the last time it was tried,
     and the pairs the recording cannot separate.
     """
+    max_correlation = models.config.identifiability.max_correlation
     selected, evidence, pairs = [], {}, []
     remaining = list(names)
     while remaining:
@@ -474,7 +450,7 @@ def _stepwise_selection(models: _Models, names, n_edges, say):
         evidence.update(round_)
         pairs += [{"effects": sorted([n, other]),
                    "correlation": round_[n]["identifiability"]["correlations"][other]}
-                  for n in remaining for other in _entangled(round_[n])]
+                  for n in remaining for other in _entangled(round_[n], max_correlation)]
         passing = [n for n in remaining if round_[n]["passes"]]
         if passing:
             chosen, near = _simplest_near_best(models, selected, passing, round_)
@@ -502,10 +478,9 @@ def _stepwise_selection(models: _Models, names, n_edges, say):
     return selected, evidence, _unique_pairs(pairs, selected)
 
 
-def _entangled(ev) -> list:
+def _entangled(ev, max_correlation) -> list:
     """The selected effects an evaluated candidate cannot be told apart from."""
-    return [n for n, c in ev["identifiability"]["correlations"].items()
-            if c > identifiability.MAX_CORRELATION]
+    return [n for n, c in ev["identifiability"]["correlations"].items() if c > max_correlation]
 
 
 def _best_swap(models: _Models, selected, remaining, round_, n_edges):
@@ -514,7 +489,7 @@ def _best_swap(models: _Models, selected, remaining, round_, n_edges):
     best = None
     for name in remaining:
         ev = round_[name]
-        tangled = _entangled(ev)
+        tangled = _entangled(ev, models.config.identifiability.max_correlation)
         if not ev["evidence_passes"] or not tangled:
             continue
         spread = LIBRARY[name].kind == "noise"
@@ -566,6 +541,7 @@ class Diagnosis:
     edge_of: dict = field(repr=False, default=None)
     tests_before: list = field(repr=False, default=None)
     tests_after: list = field(repr=False, default=None)
+    config: DiagnoseConfig = field(repr=False, default_factory=DiagnoseConfig)  # what it ran with
 
 
 def _effect_json(ev: dict, selected_names) -> dict:
@@ -607,10 +583,16 @@ def _extended_fit(models: _Models, selected):
     return ext, final
 
 
-def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
-                       noise_folds=NOISE_FOLDS, progress=None) -> Diagnosis:
+def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_folds=None,
+                       progress=None, config: DiagnoseConfig = DiagnoseConfig()) -> Diagnosis:
+    """Diagnose the recording's `keyframes` under `params`, trying `effect_names` (default:
+    the whole library). `folds` / `noise_folds`, when given, replace config.selection's."""
     say = progress or (lambda message: None)
-    names = list(effect_names or DEFAULT_CANDIDATES)
+    changes = {k: v for k, v in (("folds", folds), ("noise_folds", noise_folds)) if v is not None}
+    if changes:
+        config = dataclasses.replace(config, selection=dataclasses.replace(config.selection, **changes))
+    selection = config.selection
+    names = list(effect_names or LIBRARY)
     say("fitting the base model")
     # Without the wheel noise's dilution correction (core/dilution.py): models are compared
     # by their likelihood, which its linear cost term is not, and the term is derived for
@@ -623,7 +605,7 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
     nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     data = EffectData.from_keyframes(keyframes, inputs.stamps, positions=base.values["poses"][:, :2])
     data.walls = WallMap.from_keyframes(keyframes, inputs.stamps, base.values["poses"],
-                                        base.values["laser"][0])
+                                        base.values["laser"][0], config.walls)
     wheel_angles = np.array([kf.wheel_angles for kf in merged], float).reshape(-1, 2)
     edges = paired_edges(inputs)
     odo_cov = OdometryCovariance.of(inputs, params, nominal[:3])
@@ -632,13 +614,15 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
     edge_reg = np.array([odo_pos[int(a)] for a in edges.pose_i], int)
     before = _component_residuals(problem, base.values, edges)
     edge_of = {c: edge_reg for c in before}
-    tests_before = residual_tests(before, regs, edge_of)
+    tests_before = residual_tests(before, regs, edge_of, config.structure)
 
-    say(f"{folds}-fold time-block cross-validation ({noise_folds} spread folds for noise effects)")
+    say(f"{selection.folds}-fold time-block cross-validation ({selection.noise_folds} spread "
+        "folds for noise effects)")
     fold_args = (inputs, edges, base, params, nominal, base_result.observability)
-    models = _Models(data, inputs, edges, odo_cov, base, _time_block_folds(*fold_args, folds),
-                     _time_block_folds(*fold_args, noise_folds, blocks_per_fold=NOISE_FOLD_BLOCKS),
-                     regs, edge_reg)
+    models = _Models(data, inputs, edges, odo_cov, base, _time_block_folds(*fold_args, selection.folds),
+                     _time_block_folds(*fold_args, selection.noise_folds,
+                                       blocks_per_fold=selection.noise_fold_blocks),
+                     regs, edge_reg, config)
     n_edges = len(inputs.odo_from) + len(inputs.laser_from)
     selected, evidence, pairs = _stepwise_selection(models, names, n_edges, say)
     base_error = float(np.mean(models.heldout_nll([])))
@@ -653,11 +637,11 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
             e["value"], e["sigma"] = final[name][:2]
         effects_json.append(e)
     after = _component_residuals(ext.problem, ext.values, edges)
-    tests_after = residual_tests(after, regs, edge_of)
+    tests_after = residual_tests(after, regs, edge_of, config.structure)
     motion = kinematics.forward(inputs.odo_dphi, ext.values["odometry"][0])
     shift = identifiability.calibration_shift(base, ext, CALIBRATION_KEYS) if selected else {}
     warnings = [f"adding {', '.join(selected)} moved {k} by {z:+.1f} σ (of the extended model)"
-                for k, z in shift.items() if abs(z) > identifiability.MAX_SHIFT_SIGMA]
+                for k, z in shift.items() if abs(z) > config.identifiability.max_shift_sigma]
     warnings += [f"{p['effects'][0]} and {p['effects'][1]} cannot be told apart on this "
                  f"recording (correlation {p['correlation']:.2f}); selected: "
                  f"{', '.join(p['selected']) or 'neither'}" for p in pairs]
@@ -674,21 +658,22 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
     report = {
         "base": summary(base, base_error),
         "extended": summary(ext, ext_error),
-        "error_metric": ERROR_METRIC.format(folds=folds, noise_folds=noise_folds,
-                                             spread=NOISE_FOLD_BLOCKS),
+        "error_metric": ERROR_METRIC.format(folds=selection.folds, noise_folds=selection.noise_folds,
+                                             spread=selection.noise_fold_blocks,
+                                             c=graph_mod.LASER_KERNEL.c),
         "effects": effects_json,
         "unexplained": [{k: t[k] for k in ("component", "regressor", "strength")}
-                        for t in significant(tests_after)],
+                        for t in significant(tests_after, config.structure)],
         # The regressors that explain most of what is left (over the structured
         # components), with the fraction each explains.
         "unexplained_cause": name_structure(
             {c: r for c, r in after.items() if c.startswith("odometry.")}, regs, edge_reg,
-            motion),
+            motion, config.structure),
         "not_separable": pairs,
         "calibration_shift_sigma": shift,
         "warnings": warnings,
     }
-    return Diagnosis(report, before, after, regs, edge_of, tests_before, tests_after)
+    return Diagnosis(report, before, after, regs, edge_of, tests_before, tests_after, config)
 
 
 # --- figures ------------------------------------------------------------------------------
@@ -696,7 +681,8 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=FOLDS,
 
 def write_diagnosis_report(out_dir, diagnosis: Diagnosis, per_figure: int = 6) -> list:
     """PNG per residual component: the residual against its strongest regressors, before
-    (base model) and after (extended model) on the same axes."""
+    (base model) and after (extended model) on the same axes, clipped as the diagnosis's
+    tests clip them (its config)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -717,7 +703,7 @@ def write_diagnosis_report(out_dir, diagnosis: Diagnosis, per_figure: int = 6) -
         for ax, t in zip(axes[0], tests):
             # A group of columns is drawn against its least-squares combination.
             x = fitted_values(diagnosis.regressors[t["regressor"]][idx],
-                              diagnosis.residuals_before[comp])
+                              diagnosis.residuals_before[comp], diagnosis.config.structure)
             ax.plot(x, diagnosis.residuals_before[comp], ".", ms=3, alpha=0.6, label="before (base)")
             ax.plot(x, diagnosis.residuals_after[comp], ".", ms=3, alpha=0.6, label="after (extended)")
             ax.set_xlabel(t["regressor"])
