@@ -18,7 +18,8 @@ from sclam_ros.cli import main as cli
 from sclam_ros.core.params import SclamParams
 from sclam_ros.diagnosis import identifiability
 from sclam_ros.diagnosis.config import IdentifiabilityConfig
-from sclam_ros.diagnosis.diagnose import Disagreement, OdometryCovariance, diagnose_keyframes
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes
+from sclam_ros.diagnosis.disagreement import Disagreement, OdometryCovariance
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.io.recording import read_ground_truth, read_recording
 from sclam_ros.sim.effects import make_effect

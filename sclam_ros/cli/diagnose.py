@@ -119,8 +119,9 @@ def format_summary(report, config=None) -> str:
 def run(args) -> int:
     """Input errors propagate to sclam_ros.cli.main: one line, exit status 2."""
     from sclam_ros.diagnosis.cross_run import add_cross_run
-    from sclam_ros.diagnosis.diagnose import diagnose_keyframes, write_diagnosis_report
+    from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.diagnosis.effects import LIBRARY
+    from sclam_ros.diagnosis.figures import write_diagnosis_report
     from sclam_ros.io.recording import read_recording
     from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.main import CommandError

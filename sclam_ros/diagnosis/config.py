@@ -13,7 +13,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class SelectionConfig:
-    """How candidate effects are judged on held-out time blocks (diagnosis/diagnose.py)."""
+    """How candidate effects are judged on held-out time blocks (diagnosis/cross_validation.py)."""
 
     # count; mean effects' folds, one contiguous block each: their residuals drift, spread blocks leak it
     folds: int = 5

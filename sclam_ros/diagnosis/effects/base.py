@@ -100,12 +100,12 @@ class ModelEffect:
     # one (which the search overfits).
     searched = False
     # NLL (nats) by which the place a search chose fits worse than the search's best (a
-    # region moved by the walls: FloorNoise); diagnose._evaluate adds it back, so that the
+    # region moved by the walls: FloorNoise); evidence.evaluate adds it back, so that the
     # selection tests the statistic its penalty was set on. 0 for every other effect.
     search_deficit = 0.0
     # The regressors (diagnosis/regressors.py) that describe this effect's footprint in the
     # odometry residuals. When another regressor explains more of the structure than these
-    # do, the effect would only stand in for that cause and is not selected (diagnose._evaluate).
+    # do, the effect would only stand in for that cause and is not selected (evidence.py).
     # Empty: not checked.
     signature: tuple = ()
 

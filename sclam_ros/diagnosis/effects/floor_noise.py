@@ -76,7 +76,7 @@ class FloorNoise(ModelEffect):
         self.wall_support = None  # wall_map score of the region (None: no walls)
         # NLL (nats) by which the region the walls chose fits the edges worse than the
         # likelihood's best rectangle (0: the same). The selection tests the search's
-        # best (diagnose._evaluate): its likelihood ratio on runs without a floor effect is
+        # best (evidence.evaluate): its likelihood ratio on runs without a floor effect is
         # what the penalty was set on; the walls choose the place, not whether there is one.
         self.search_deficit = 0.0
 

@@ -1,10 +1,10 @@
 """Maximum-likelihood factors on the wheels' noise, shared by the noise effects.
 
 A noise effect changes the noise model, not the mean: it multiplies the wheel-noise part
-of each edge's odometry covariance by a factor (diagnose.OdometryCovariance says why that
-part). It is fitted to the laser-vs-odometry disagreements of a fit, whose covariance
+of each edge's odometry covariance by a factor (disagreement.OdometryCovariance says why
+that part). It is fitted to the laser-vs-odometry disagreements of a fit, whose covariance
 is factor·(wheels' part) + (scan match and the odometry's other parts), through a function
-nll(factors (m,)) -> per-edge negative log-likelihood (m,) (diagnose.Disagreement.nll).
+nll(factors (m,)) -> per-edge negative log-likelihood (m,) (disagreement.Disagreement.nll).
 Factors are searched within exp(±log_range) (NoiseConfig.log_range).
 """
 from __future__ import annotations
