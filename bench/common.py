@@ -77,3 +77,22 @@ def seeds_arguments(doc, seeds, duration):
     ap.add_argument("--duration", type=float, default=duration)
     ap.add_argument("--jobs", type=int, default=2)
     return ap
+
+
+def diagnose_config(settings=()):
+    """The DiagnoseConfig with `settings` ("section.field=value", e.g.
+    "selection.noise_folds=10") changed from the defaults: how a diagnose bench tries
+    another value without touching the code."""
+    import dataclasses
+
+    from sclam_ros.diagnosis.config import DiagnoseConfig
+
+    config = DiagnoseConfig()
+    for setting in settings:
+        path, _, text = setting.partition("=")
+        section_name, _, name = path.strip().partition(".")
+        section = getattr(config, section_name)
+        value = type(getattr(section, name))(text)
+        config = dataclasses.replace(
+            config, **{section_name: dataclasses.replace(section, **{name: value})})
+    return config

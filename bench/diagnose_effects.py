@@ -25,6 +25,7 @@ most frequent first entry of `unexplained_cause` over the seeds (with how many s
 
 Run: .venv/bin/python bench/diagnose_effects.py [--seeds 5] [--duration 180]
      [--scenarios carpet,speed_radius,clean,...] [--jobs 1] [--without-walls]
+     [--set SECTION.FIELD=VALUE ...]   (a DiagnoseConfig value, e.g. selection.noise_folds=10)
 """
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import scratch_dir, table  # noqa: E402
+from common import diagnose_config, scratch_dir, table  # noqa: E402
 
 ROOM = {"x_min": 0.0, "x_max": 11.0, "y_min": 9.0, "y_max": 16.0}  # room n1 of the office
 EXTRA_SLIP = 0.006  # fraction of a revolution after one revolution
@@ -75,7 +76,7 @@ def _in_region(xy, region):
             & (v >= region["across"][0]) & (v <= region["across"][1]))
 
 
-def run_case(scenario, seed, duration, workdir, walls=True):
+def run_case(scenario, seed, duration, workdir, walls=True, config=None):
     from sclam_ros.core.params import SclamParams
     from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.io.recording import read_recording
@@ -90,7 +91,7 @@ def run_case(scenario, seed, duration, workdir, walls=True):
     start = time.perf_counter()
     keyframes = read_recording(bag, params, keep_scan_points=walls).keyframes
     read_s = time.perf_counter() - start
-    report = diagnose_keyframes(keyframes, params).report
+    report = diagnose_keyframes(keyframes, params, config=config or diagnose_config()).report
     out = {"scenario": scenario, "seed": seed, "duration": duration,
            "seconds": time.perf_counter() - start, "read_seconds": read_s,
            "selected": [e["name"] for e in report["effects"] if e["selected"]],
@@ -162,13 +163,16 @@ def main():
     ap.add_argument("--without-walls", action="store_true",
                     help="read the recordings without their scans' points: no map of walls "
                          "bounds the floor region (what the likelihood alone finds)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                    help="a DiagnoseConfig value other than the default (repeatable)")
     args = ap.parse_args()
+    config = diagnose_config(args.set)
     names = [n.strip() for n in args.scenarios.split(",")]
     work = scratch_dir("sclam_diagnose_bench_")
     cases = [(n, s) for n in names for s in range(args.first_seed, args.first_seed + args.seeds)]
     results = {n: [] for n in names}
     with ProcessPoolExecutor(args.jobs) as pool:
-        futures = [pool.submit(run_case, n, s, args.duration, work, not args.without_walls)
+        futures = [pool.submit(run_case, n, s, args.duration, work, not args.without_walls, config)
                    for n, s in cases]
         for (n, s), f in zip(cases, futures):
             r = f.result()
@@ -191,7 +195,8 @@ def main():
                   f"{[p['effects'] for p in r['not_separable']]}, {r['seconds']:.0f} s", flush=True)
     print(f"\n{args.seeds} seeds from {args.first_seed}, {args.duration:.0f} s "
           "(90 s for the library's mean effects)"
-          + (", without the map of walls" if args.without_walls else ""))
+          + (", without the map of walls" if args.without_walls else "")
+          + (f", {', '.join(args.set)}" if args.set else ""))
     print(table([_row(n, results[n]) for n in names],
                 ["scenario", "seeds", "selected correctly", "else named as fitting as well",
                  "region overlap", "size error", "size error / σ",

@@ -3,7 +3,8 @@ test/test_diagnose*.py: what is selected, its estimate against what was injected
 held-out error (NLL per edge, lower is better) of the base and the extended model.
 Effects outside the library are listed with the first regressor named unexplained.
 
-Run: .venv/bin/python bench/diagnose_examples.py [--jobs 2]
+Run: .venv/bin/python bench/diagnose_examples.py [--jobs 2] [--set SECTION.FIELD=VALUE ...]
+     (--set: a DiagnoseConfig value other than the default, e.g. floor.within=2)
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import scratch_dir, table  # noqa: E402
+from common import diagnose_config, scratch_dir, table  # noqa: E402
 
 # label, simulate() keywords, duration s, effect whose value is compared, what was injected
 CASES = [
@@ -36,7 +37,7 @@ CASES = [
 
 
 def run_case(job):
-    number, label, options, duration, name, injected, workdir = job
+    number, label, options, duration, name, injected, workdir, config = job
     from sclam_ros.core.params import SclamParams
     from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.io.recording import read_ground_truth, read_recording
@@ -52,7 +53,7 @@ def run_case(job):
     simulate(bag, duration=duration, seed=1, overwrite=True, **options)
     params = SclamParams.from_yaml(bag / "params.yaml")
     keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
-    report = diagnose_keyframes(keyframes, params).report
+    report = diagnose_keyframes(keyframes, params, config=config).report
     selected = [e["name"] for e in report["effects"] if e["selected"]]
     estimate = "–"
     if name is not None:
@@ -73,12 +74,16 @@ def run_case(job):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                    help="a DiagnoseConfig value other than the default (repeatable)")
     args = ap.parse_args()
+    config = diagnose_config(args.set)
     workdir = scratch_dir("sclam_diag_examples_")
-    jobs = [(number, *case, workdir) for number, case in enumerate(CASES)]
+    jobs = [(number, *case, workdir, config) for number, case in enumerate(CASES)]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(run_case, jobs))
-    print("seed 1; held-out error: NLL per edge of the 5-fold time blocks, base → extended")
+    print(f"seed 1; held-out error: NLL per edge of the {config.selection.folds}-fold time blocks, "
+          "base → extended" + (f"; {', '.join(args.set)}" if args.set else ""))
     print(table(rows, ["injected (simulator)", "run", "selected", "injected value", "estimate",
                        "held-out error base → extended", "first odometry regressor unexplained"]))
 

@@ -33,9 +33,10 @@ from sclam_ros.io.convert import (
     read_breezyslam,
     read_optiodom,
 )
-from sclam_ros.diagnosis.diagnose import diagnose_keyframes, write_diagnosis_report
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
+from sclam_ros.diagnosis.figures import write_diagnosis_report
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.io.recording import read_recording
 from sclam_ros.core.covariance import marginal_covariance

@@ -17,7 +17,9 @@ import pytest
 from sclam_ros.cli import main as cli
 from sclam_ros.core.params import SclamParams
 from sclam_ros.diagnosis import identifiability
-from sclam_ros.diagnosis.diagnose import Disagreement, diagnose_keyframes
+from sclam_ros.diagnosis.config import IdentifiabilityConfig
+from sclam_ros.diagnosis.diagnose import diagnose_keyframes
+from sclam_ros.diagnosis.disagreement import Disagreement, OdometryCovariance
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.io.recording import read_ground_truth, read_recording
 from sclam_ros.sim.effects import make_effect
@@ -93,10 +95,11 @@ def test_a_floor_ratio_the_recording_does_not_determine_does_not_join():
     pose = np.arange(m)
     effect.fit(pose, pose, _disagreements(rng, np.where(room, 2.44, 1.0)).nll)
     edges = SimpleNamespace(pose_i=pose, pose_j=pose)
-    assert identifiability.check(effect, [], None, [effect], edges)["determined"]
+    config = IdentifiabilityConfig()
+    assert identifiability.check(effect, [], None, [effect], edges, config)["determined"]
     effect.log_ratio_sigma = np.log(1 + 110 / 46)
-    result = identifiability.check(effect, [], None, [effect], edges)
-    assert not result["determined"] and not identifiability.separable(result)
+    result = identifiability.check(effect, [], None, [effect], edges, config)
+    assert not result["determined"] and not identifiability.separable(result, config)
 
 
 def test_noise_vs_speed_from_synthetic_residuals():
@@ -209,7 +212,6 @@ def test_clock_offset_and_sweep_delay_are_not_selected_together(tmp_path):
 def test_noise_effects_scale_the_wheels_noise_not_the_sideways_slip():
     # A floor or speed where the wheels slip more scales their noise; the sideways slip
     # (full rank for the edges), the encoders' quantisation and the interpolation stay.
-    from sclam_ros.diagnosis.diagnose import OdometryCovariance
     params = SclamParams()
     k = np.array([0.1, 0.1, 0.5])
     straight = np.array([[2.0, 2.0]])  # both wheels 2 rad: 0.2 m straight ahead

@@ -8,7 +8,8 @@ import pytest
 
 from sclam_ros.core import se2
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
-from sclam_ros.diagnosis.wall_map import CELL, WallMap
+from sclam_ros.diagnosis.config import FloorNoiseConfig, WallMapConfig
+from sclam_ros.diagnosis.wall_map import WallMap
 from test_diagnose_noise import _disagreements
 
 WALLS = [  # (x0, y0, x1, y1) m
@@ -47,8 +48,9 @@ def test_the_scans_are_placed_on_the_walls():
     world = _wall_points()
     nearest = np.min(np.hypot(*(occupied[:, None, :] - world[None, :, :]).transpose(2, 0, 1)),
                      axis=1)
-    assert len(occupied) > 0.8 * sum(np.hypot(x1 - x0, y1 - y0) for x0, y0, x1, y1 in WALLS) / CELL
-    assert nearest.max() <= CELL / np.sqrt(2) + 0.01  # a cell's centre, a wall through it
+    cell = WallMapConfig().cell
+    assert len(occupied) > 0.8 * sum(np.hypot(x1 - x0, y1 - y0) for x0, y0, x1, y1 in WALLS) / cell
+    assert nearest.max() <= cell / np.sqrt(2) + 0.01  # a cell's centre, a wall through it
 
 
 def test_a_room_bounded_at_its_doors_scores_one_and_a_region_spilling_past_a_door_less():
@@ -96,19 +98,19 @@ def test_the_walls_take_the_room_of_rectangles_the_likelihood_cannot_tell_apart(
             effect.fit(pose, pose, nll)
             found[key] = effect.inside(pose, pose)
             wrong[key] += not np.array_equal(found[key], room_a)
-        # The walls' choice fits worse than the likelihood's best by less than WITHIN
+        # The walls' choice fits worse than the likelihood's best by less than `within`
         # (plus what refining the factors off the search's grid of levels moves), and
         # the selection is told by how much.
         if np.array_equal(found[None], found["walls"]):
             assert effect.search_deficit == 0.0
         else:
-            assert 0.0 < effect.search_deficit <= effect.WITHIN + 0.5
+            assert 0.0 < effect.search_deficit <= FloorNoiseConfig().within + 0.5
     assert wrong["walls"] == 0, wrong
     assert wrong[None] >= 3, wrong  # without the walls: 5 of these 30 draws
 
 
 def test_scans_with_too_few_returns_per_cell_make_no_walls_and_bound_nothing():
-    # One return per cell is a stray (MIN_HITS): an empty map, which bounds no region.
+    # One return per cell is a stray (WallMapConfig.min_hits): an empty map, which bounds no region.
     walls = WallMap.from_scans(POSES[:1], np.zeros(3), [np.array([[1.0, 0.0], [3.0, 2.0]])])
     assert walls.occupied.shape == (0, 2)
     u = _route()

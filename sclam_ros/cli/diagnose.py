@@ -25,13 +25,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
     parser.add_argument("--json", metavar="OUT.json", help="write the diagnosis as JSON")
     parser.add_argument("--report", metavar="DIR", help="write residual figures (PNG) here")
-    from sclam_ros.diagnosis.diagnose import DEFAULT_CANDIDATES, FOLDS, NOISE_FOLDS
+    from sclam_ros.diagnosis.config import SelectionConfig
+    from sclam_ros.diagnosis.effects import LIBRARY
 
     parser.add_argument("--effects", metavar="NAME[,NAME...]",
-                        help=f"effects to try (default: {','.join(DEFAULT_CANDIDATES)})")
-    parser.add_argument("--folds", type=int, default=FOLDS,
+                        help=f"effects to try (default: {','.join(LIBRARY)})")
+    parser.add_argument("--folds", type=int, default=SelectionConfig().folds,
                         help="time blocks of the cross-validation (mean effects)")
-    parser.add_argument("--noise-folds", type=int, default=NOISE_FOLDS,
+    parser.add_argument("--noise-folds", type=int, default=SelectionConfig().noise_folds,
                         help="folds of the noise effects' cross-validation, each of blocks "
                              "spread over the run")
     parser.add_argument("--predict", metavar="OTHER_BAG",
@@ -59,8 +60,12 @@ def _region_text(region) -> str:
     return f"region: corners {corners} m in the odometry frame; {walls}"
 
 
-def format_summary(report) -> str:
-    from sclam_ros.diagnosis.identifiability import SIGMA_RATIO
+def format_summary(report, config=None) -> str:
+    """The report in lines for a reader; `config`: the DiagnoseConfig it was made with
+    (default: DiagnoseConfig())."""
+    from sclam_ros.diagnosis.config import DiagnoseConfig
+
+    sigma_ratio = (config or DiagnoseConfig()).identifiability.sigma_ratio
 
     lines = [f"held-out error: base {report['base']['error']:.4f}, "
              f"extended {report['extended']['error']:.4f}"]
@@ -87,7 +92,7 @@ def format_summary(report) -> str:
         if not e["selected"] and not ident["determined"] and ident["sigma_ratio"] is not None:
             lines.append(f"    not determined by this recording: its σ is "
                          f"{ident['sigma_ratio']:.2f} of its prior's (at most "
-                         f"{SIGMA_RATIO} to join)")
+                         f"{sigma_ratio} to join)")
         stand_in = e["evidence"].get("stand_in_for")
         if stand_in and not e["selected"]:
             lines.append(f"    {stand_in['regressor']} explains more of what it would fit "
@@ -114,8 +119,9 @@ def format_summary(report) -> str:
 def run(args) -> int:
     """Input errors propagate to sclam_ros.cli.main: one line, exit status 2."""
     from sclam_ros.diagnosis.cross_run import add_cross_run
-    from sclam_ros.diagnosis.diagnose import diagnose_keyframes, write_diagnosis_report
+    from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.diagnosis.effects import LIBRARY
+    from sclam_ros.diagnosis.figures import write_diagnosis_report
     from sclam_ros.io.recording import read_recording
     from sclam_ros.core.params import SclamParams, atomic_write_text
     from sclam_ros.cli.main import CommandError
@@ -138,7 +144,7 @@ def run(args) -> int:
                                                     not args.quiet))
         add_cross_run(diagnosis.report, recording.keyframes, params, other.keyframes,
                       other_params, args.predict)
-    print(format_summary(diagnosis.report))
+    print(format_summary(diagnosis.report, diagnosis.config))
     if args.json:
         atomic_write_text(args.json, json.dumps(diagnosis.report, indent=2) + "\n")
     if args.report:

@@ -6,7 +6,7 @@
 
 Time-block cross-validation (diagnose) holds out part of the same drive; a calibration is
 meant to serve the next drive. Here the whole of B is held out: nothing of B enters the
-fit, and the error is diagnose's held-out metric (diagnose.edge_nll) over every paired edge
+fit, and the error is diagnose's held-out metric (disagreement.edge_nll) over every paired edge
 of B. The effects read B's own stamps and wheel speeds with A's parameters: a clock offset
 or a lateral-slip gain is a property of the robot, not of the drive. Noise effects
 (floor_noise) are not carried over: their regions are cells of A's map, which B's frame
@@ -19,11 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.diagnosis.diagnose import Fit, OdometryCovariance, edge_nll, paired_edges
+from sclam_ros.diagnosis.disagreement import OdometryCovariance, edge_nll
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
+from sclam_ros.diagnosis.fitting import Fit, nominal_calibration, paired_edges
 from sclam_ros.core.estimator import calibrate_keyframes
-from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.variance_components import solve_with_variance_components
 
 CROSS_RUN_METRIC = (
@@ -74,13 +74,12 @@ def fit_models(keyframes, params, effect_names=()) -> tuple:
 
 
 def predict_error(model: FittedModel, keyframes, params) -> np.ndarray:
-    """Per-edge NLL (nats) of another recording's edges under `model` (diagnose.edge_nll)."""
+    """Per-edge NLL (nats) of another recording's edges under `model` (disagreement.edge_nll)."""
     inputs = graph_inputs(keyframes, params)
     data = EffectData.from_keyframes(keyframes, inputs.stamps)
     effects = [LIBRARY[n](data) for n in model.effects]
-    nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
     # The stated odometry noise at nominal k, exactly as diagnose scores its held-out blocks.
-    odo_cov = OdometryCovariance.of(inputs, params, nominal[:3])
+    odo_cov = OdometryCovariance.of(inputs, params, nominal_calibration(params)[:3])
     fit = Fit(problem=None, values=model.values, scales=model.scales, cost=float("nan"))
     return edge_nll(fit, effects, inputs, paired_edges(inputs), odo_cov)
 

@@ -1,31 +1,27 @@
 """Can the recording tell an effect apart from those already in the model, and did the
 model's calibration move more than its uncertainty allows?
 
-An effect joins the model only if it is determined together with the selected ones:
-- its parameters' posterior σ is at most SIGMA_RATIO of their prior σ (the prior that
+An effect joins the model only if it is determined together with the selected ones
+(IdentifiabilityConfig):
+- its parameters' posterior σ is at most sigma_ratio of their prior σ (the prior that
   keeps an unexcited effect well-posed; at σ ≈ prior the data say nothing about it; for
   a noise effect with a σ, its log factor's against a log uniform over the factors it
   searches, _noise_sigma_ratio), and
-- no correlation between its parameters and a selected effect's exceeds MAX_CORRELATION.
+- no correlation between its parameters and a selected effect's exceeds max_correlation.
   For mechanical effects: of the joint marginal covariance in the graph. For noise
   effects: of the log factors they put on the edges (a carpet the robot only crosses
   slowly and a noise that grows with speed cannot both be fitted).
 Two effects that pass the held-out test each but fail this together are reported as a
-pair the recording cannot separate, instead of both being selected. (On the Mines log, a
-clock offset and a scan-timing delay, one parameter when both are in the model, were both
-selected with σ equal to their priors.)
+pair the recording cannot separate, instead of both being selected: a clock offset and a
+scan-timing delay, one parameter when both are in the model, would otherwise both be
+selected with σ equal to their priors (docs/decisions/diagnose.md).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from sclam_ros.core.covariance import marginal_covariance
-
-SIGMA_RATIO = 0.5
-MAX_CORRELATION = 0.9
-# The calibration moving by more than this many of the extended model's σ when effects are
-# added is said in the report's warnings.
-MAX_SHIFT_SIGMA = 3.0
+from sclam_ros.diagnosis.config import IdentifiabilityConfig
 
 
 def _log_scales(effect, edges):
@@ -34,19 +30,17 @@ def _log_scales(effect, edges):
 
 def _noise_sigma_ratio(effect):
     """σ of a fitted noise effect's log factor over its prior's, or None for an effect that
-    states no σ. The prior: the log uniform over the factors the effect searches (LEVELS,
-    floor_noise: 1/8 to 8, σ = ln 8 / √3 ≈ 1.2). (On the Mines exp1 log, scans re-stamped by
-    160 ms, a rectangle of a few edges was selected with a variance ratio of 46 ± 110, a log
-    σ of 2.4, and moved the held-out error by 0.01 nats per edge; one room's simulated carpet
-    gives a log σ of about 0.2, bench/diagnose_effects.py.)"""
+    states no σ. The prior: the log uniform over the factors the effect searches (its
+    `levels`; floor_noise: FloorNoiseConfig.levels). A rectangle of a few edges otherwise
+    joins with a ratio the recording hardly determines (docs/decisions/diagnose.md)."""
     sigma = effect.value_sigma()
     if sigma is None or not effect.value() > 0:
         return None
-    prior = np.ptp(effect.LEVELS) / np.sqrt(12.0)
+    prior = np.ptp(effect.levels) / np.sqrt(12.0)
     return float(sigma / effect.value() / prior)
 
 
-def check(candidate, selected, fit, noise, edges) -> dict:
+def check(candidate, selected, fit, noise, edges, config: IdentifiabilityConfig) -> dict:
     """{"determined", "sigma_ratio", "correlations": {other: |ρ|}} for the candidate
     effect (an instance) fitted together with the `selected` instances in `fit` (mechanical
     effects) and `noise` (the fitted noise effects)."""
@@ -60,7 +54,7 @@ def check(candidate, selected, fit, noise, edges) -> dict:
             if np.std(mine) > 0 and np.std(theirs) > 0:
                 correlations[other.name] = float(abs(np.corrcoef(mine, theirs)[0, 1]))
         ratio = _noise_sigma_ratio(candidate)
-        return {"determined": ratio is None or ratio <= SIGMA_RATIO, "sigma_ratio": ratio,
+        return {"determined": ratio is None or ratio <= config.sigma_ratio, "sigma_ratio": ratio,
                 "correlations": correlations}
     blocks = [e.name for e in selected if e.kind != "noise" and e.name != candidate.name]
     cov = marginal_covariance(fit.problem, fit.values, [candidate.name] + blocks)
@@ -75,12 +69,12 @@ def check(candidate, selected, fit, noise, edges) -> dict:
         dim = type(e).dim
         correlations[e.name] = float(np.max(np.abs(corr[:d, start:start + dim])))
         start += dim
-    return {"determined": ratio <= SIGMA_RATIO, "sigma_ratio": ratio,
+    return {"determined": ratio <= config.sigma_ratio, "sigma_ratio": ratio,
             "correlations": correlations}
 
 
-def separable(result: dict) -> bool:
-    return result["determined"] and all(c <= MAX_CORRELATION
+def separable(result: dict, config: IdentifiabilityConfig) -> bool:
+    return result["determined"] and all(c <= config.max_correlation
                                         for c in result["correlations"].values())
 
 

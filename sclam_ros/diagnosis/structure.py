@@ -2,23 +2,21 @@
 explains most of what a model leaves.
 
 Residuals are whitened (the stated noise grows with the wheel angle turned, so raw
-residuals would correlate with speed through their spread alone) and clipped at ±3σ so
-that an odd failed scan match cannot dominate.
+residuals would correlate with speed through their spread alone) and clipped at
+±StructureConfig.residual_clip so that an odd failed scan match cannot dominate. A
+residual-regressor dependence counts as structure when its multiple correlation is at
+least StructureConfig.min_strength and significant after a Bonferroni correction over
+all tests at StructureConfig.alpha.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy import stats
 
-# Residual-regressor dependence counts as structure when its multiple correlation is this
-# strong and significant after a Bonferroni correction over all tests at this level.
-MIN_STRENGTH = 0.2
-ALPHA = 0.01
-LJUNG_BOX_LAGS = 10
-RESIDUAL_CLIP = 3.0  # whitened σ
+from sclam_ros.diagnosis.config import StructureConfig
 
 
-def ljung_box(series, lags=LJUNG_BOX_LAGS):
+def ljung_box(series, lags: int):
     """(Q, p) of the Ljung-Box test of no autocorrelation up to `lags`."""
     x = np.asarray(series, float) - np.mean(series)
     n = len(x)
@@ -34,8 +32,8 @@ def ljung_box(series, lags=LJUNG_BOX_LAGS):
 def explained(x, y):
     """(R², adjusted R², p-value of the F test) of the least-squares fit y ~ 1 + x, x (n, c).
     For one column R² is Pearson's r². (Not a rank correlation: most edges drive straight,
-    and ranking their near-zero ω by its noise showed |ρ| ≈ 0.5 "structure" on simulated
-    runs with no effect at all.)"""
+    and ranking their near-zero ω by its noise shows strong "structure" on runs with no
+    effect at all; docs/decisions/diagnose.md.)"""
     x = x[:, np.ptp(x, axis=0) > 0]
     n, c = len(y), x.shape[1]
     ss_tot = float(np.sum((y - y.mean()) ** 2))
@@ -48,25 +46,27 @@ def explained(x, y):
     return r2, 1.0 - (1.0 - r2) * (n - 1) / (n - c - 1), float(stats.f.sf(f, c, n - c - 1))
 
 
-def fitted_values(x, y):
+def fitted_values(x, y, config: StructureConfig):
     """The least-squares combination of the columns of x (n, c) that best predicts y (one
     column: x itself), for plotting a residual against a group of regressors."""
     if x.shape[1] == 1:
         return x[:, 0]
     design = np.column_stack([np.ones(len(y)), x])
-    coef, *_ = np.linalg.lstsq(design, np.clip(y, -RESIDUAL_CLIP, RESIDUAL_CLIP), rcond=None)
+    clip = config.residual_clip
+    coef, *_ = np.linalg.lstsq(design, np.clip(y, -clip, clip), rcond=None)
     return design[:, 1:] @ coef[1:]
 
 
-def residual_tests(residuals: dict, regs: dict, edge_of: dict) -> list:
+def residual_tests(residuals: dict, regs: dict, edge_of: dict, config: StructureConfig) -> list:
     """Dependence of every residual component on every regressor group, and whiteness.
 
     residuals: component name -> (m,) whitened values; regs: group name -> (m_o, c);
     edge_of: component name -> (m,) index into the regressor rows. Strength: the multiple
-    correlation √R²; whiteness: Ljung-Box over the first 10 lags (regressor "lag")."""
+    correlation √R²; whiteness: Ljung-Box over the first config.ljung_box_lags lags
+    (regressor "lag")."""
     out = []
     for comp, res in residuals.items():
-        y = np.clip(res, -RESIDUAL_CLIP, RESIDUAL_CLIP)
+        y = np.clip(res, -config.residual_clip, config.residual_clip)
         for name, reg in regs.items():
             if len(y) < 10:
                 continue
@@ -74,20 +74,20 @@ def residual_tests(residuals: dict, regs: dict, edge_of: dict) -> list:
             if np.isfinite(r2):
                 out.append({"component": comp, "regressor": name, "strength": float(np.sqrt(r2)),
                             "fraction_explained": float(max(r2_adj, 0.0)), "p_value": p})
-        q, p = ljung_box(res)
+        q, p = ljung_box(res, config.ljung_box_lags)
         out.append({"component": comp, "regressor": "lag",
                     "strength": float(np.sqrt(q / max(len(res), 1))), "p_value": p})
     return out
 
 
-def significant(tests: list) -> list:
-    threshold = ALPHA / max(len(tests), 1)
+def significant(tests: list, config: StructureConfig) -> list:
+    threshold = config.alpha / max(len(tests), 1)
     keep = [t for t in tests if t["p_value"] < threshold
-            and (t["regressor"] == "lag" or t["strength"] >= MIN_STRENGTH)]
+            and (t["regressor"] == "lag" or t["strength"] >= config.min_strength)]
     return sorted(keep, key=lambda t: -t["strength"])
 
 
-def regressor_shares(residuals: dict, regs: dict, edge_index, motion) -> tuple:
+def regressor_shares(residuals: dict, regs: dict, edge_index, motion, config: StructureConfig) -> tuple:
     """({regressor name: the fraction of the odometry's structure it explains}, the
     components with structure): a regressor's fraction is its mean adjusted R² over the
     components with significant structure ({} when none has any).
@@ -97,17 +97,17 @@ def regressor_shares(residuals: dict, regs: dict, edge_index, motion) -> tuple:
     additive error (∝ f) and a scale error (∝ f times the component's own motion). One
     cause shows in several components: a radius growing with speed scales the whole
     motion by v², which is v³ in x and v²·ω in θ; in additive form alone θ's v²·ω looks
-    like v·ω and named the wrong cause."""
+    like v·ω and names the wrong cause."""
     tests, axis = [], {"odometry.x": 0, "odometry.y": 1, "odometry.theta": 2}
     for comp, res in residuals.items():
         own = motion[edge_index, axis[comp]][:, None]
-        y = np.clip(res, -RESIDUAL_CLIP, RESIDUAL_CLIP)
+        y = np.clip(res, -config.residual_clip, config.residual_clip)
         for name, reg in regs.items():
             x = reg[edge_index]
             r2, r2_adj, p = explained(np.column_stack([x, x * own]), y)
             tests.append({"component": comp, "regressor": name, "fraction_explained": max(r2_adj, 0.0),
                           "strength": float(np.sqrt(r2)), "p_value": p})
-    structured = sorted({t["component"] for t in significant(tests)})
+    structured = sorted({t["component"] for t in significant(tests, config)})
     share = {}
     for t in tests:
         if t["component"] in structured:
@@ -116,10 +116,11 @@ def regressor_shares(residuals: dict, regs: dict, edge_index, motion) -> tuple:
     return share, structured
 
 
-def name_structure(residuals: dict, regs: dict, edge_index, motion, top: int = 3) -> list:
+def name_structure(residuals: dict, regs: dict, edge_index, motion, config: StructureConfig,
+                   top: int = 3) -> list:
     """The regressors that explain most of the structure left in the odometry, best first
     (regressor_shares), with the components that have structure."""
-    share, structured = regressor_shares(residuals, regs, edge_index, motion)
+    share, structured = regressor_shares(residuals, regs, edge_index, motion, config)
     best = sorted(share.items(), key=lambda kv: -kv[1])[:top]
     return [{"regressor": name, "fraction_explained": float(f), "components": structured}
             for name, f in best]

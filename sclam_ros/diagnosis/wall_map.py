@@ -7,7 +7,7 @@ apart (effects/floor_noise.py). The walls can. This map scores how well a region
 boundary follows them.
 
 The map: each graph pose's scan, placed with the fitted poses and laser mount, binned
-into CELL cells; a cell with at least MIN_HITS points is occupied (a stray return, a
+into WallMapConfig.cell cells; a cell with at least min_hits points is occupied (a stray return, a
 person walking past, is not a wall). A region (its inside edges' mid-points, in the map's
 axes) scores doorways × (1 − split) if the walls bound it, 0 if they do not:
 - split: the share of its inside edges beyond a wall that runs through it (a rectangle
@@ -15,33 +15,21 @@ axes) scores doorways × (1 − split) if the walls bound it, 0 if they do not:
 - doorways: the share of the route's crossings of its boundary that pass through an
   opening in a wall running along that boundary (a door), not across open floor.
 A region the route never leaves or enters scores 1 on doorways. The walls bound a
-region with at most MAX_SPLIT of its edges beyond a wall through it and at least
-MIN_DOORWAYS of its crossings through doors; for any other region they say nothing
+region with at most max_split of its edges beyond a wall through it and at least
+min_doorways of its crossings through doors; for any other region they say nothing
 (a floor that changes along a line across the rooms of half an office: the rectangles
-the likelihood cannot tell apart there all have walls through them, and the one that
-scored highest without these limits ran metres further past the floor's edge than the
-likelihood's best; the floor_noise_region case of bench/diagnose_examples.py).
+the likelihood cannot tell apart there all have walls through them, and without these
+limits the one that scores highest runs metres further past the floor's edge than the
+likelihood's best; docs/decisions/diagnose.md).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from sclam_ros.core import se2
-
-CELL = 0.1  # m
-MIN_HITS = 3
-# A wall through a region: at least this long within it (or half the region's width).
-SPLIT_WALL = 2.0  # m
-# An opening: wall along the boundary on both sides of the crossing, at least OPENING_RUN
-# of it between OPENING_NEAR and OPENING_FAR from the crossing, within OPENING_BAND of the
-# boundary's line (doors are 0.8-1.2 m wide; the line lies halfway between the last edge
-# inside and the first outside, so a few cm to a few dm off the wall).
-OPENING_NEAR, OPENING_FAR, OPENING_RUN, OPENING_BAND = 0.2, 1.5, 0.5, 0.3  # m
-MAX_SPLIT, MIN_DOORWAYS = 0.1, 0.5
-# Consecutive edges farther apart than this (a gap in the data) are not a crossing.
-CROSSING_STEP = 1.0  # m
+from sclam_ros.diagnosis.config import WallMapConfig
 
 
 @dataclass
@@ -49,9 +37,10 @@ class WallMap:
     """Occupied cells of the map (their centres in the odometry frame, (k, 2) m)."""
 
     occupied: np.ndarray
+    config: WallMapConfig = field(default_factory=WallMapConfig)
 
     @classmethod
-    def from_scans(cls, poses, mount, scans) -> "WallMap | None":
+    def from_scans(cls, poses, mount, scans, config: WallMapConfig = WallMapConfig()) -> "WallMap | None":
         """poses (n, 3) fitted base poses; mount (3,) the laser on the base; scans: n
         arrays (m_i, 2) of the laser's points in its own frame (None where none).
         None if there are no points at all."""
@@ -60,12 +49,13 @@ class WallMap:
                   if points is not None and len(points)]
         if not placed:
             return None
-        cells, hits = np.unique(np.floor(np.vstack(placed) / CELL).astype(np.int64), axis=0,
+        cells, hits = np.unique(np.floor(np.vstack(placed) / config.cell).astype(np.int64), axis=0,
                                 return_counts=True)
-        return cls((cells[hits >= MIN_HITS] + 0.5) * CELL)
+        return cls((cells[hits >= config.min_hits] + 0.5) * config.cell, config)
 
     @classmethod
-    def from_keyframes(cls, raw_keyframes, stamps, poses, mount) -> "WallMap | None":
+    def from_keyframes(cls, raw_keyframes, stamps, poses, mount,
+                       config: WallMapConfig = WallMapConfig()) -> "WallMap | None":
         """The map of the scans the raw keyframes carry (Keyframe.scan_points) at the
         graph's pose `stamps` (a merged keyframe's stamp is its last raw keyframe's),
         placed with the fitted `poses` (n, 3) and laser `mount` (3,). None without scans."""
@@ -73,18 +63,19 @@ class WallMap:
                      if kf.scan_points is not None}
         if not points_at:
             return None
-        return cls.from_scans(poses, mount, [points_at.get(t) for t in stamps])
+        return cls.from_scans(poses, mount, [points_at.get(t) for t in stamps], config)
 
     def in_axes(self, angle: float) -> "AxisWalls":
         """The map in axes rotated by `angle` (rad) from the odometry frame's."""
-        return AxisWalls(se2.rotate_inverse(angle, self.occupied))
+        return AxisWalls(se2.rotate_inverse(angle, self.occupied), self.config)
 
 
 class AxisWalls:
     """The occupied cells on a grid in the map's axes, with what the scores look up."""
 
-    def __init__(self, points):
-        cells = np.floor(np.asarray(points, float).reshape(-1, 2) / CELL).astype(int)
+    def __init__(self, points, config: WallMapConfig):
+        self.config = config
+        cells = np.floor(np.asarray(points, float).reshape(-1, 2) / config.cell).astype(int)
         self.origin = (cells.min(axis=0) - 2) if len(cells) else np.zeros(2, int)
         cells -= self.origin
         shape = (cells.max(axis=0) + 3) if len(cells) else np.ones(2, int)
@@ -105,30 +96,31 @@ class AxisWalls:
                                               axis=1))
 
     def _row(self, k, x):
-        return int(np.floor(x / CELL)) - self.origin[k]
+        return int(np.floor(x / self.config.cell)) - self.origin[k]
 
     def _column(self, k, x):
-        return int(np.floor(x / CELL)) - self.origin[1 - k]
+        return int(np.floor(x / self.config.cell)) - self.origin[1 - k]
 
     def score(self, u, inside) -> float:
         """doorways × (1 − split) of the region `inside` (m,) bool of the edge mid-points
         u (m, 2) in the map's axes, in time order, if the walls bound it; else 0."""
         doorways = self.doorways(u, inside)
-        if doorways < MIN_DOORWAYS:
+        if doorways < self.config.min_doorways:
             return 0.0
         split = self.split(u, inside)
-        return 0.0 if split > MAX_SPLIT else doorways * (1.0 - split)
+        return 0.0 if split > self.config.max_split else doorways * (1.0 - split)
 
     def split(self, u, inside) -> float:
         """Share of the inside edges on the smaller side of the wall through the region
         that divides them most (0: no wall runs through it)."""
         ins = u[inside]
         lo, hi = ins.min(axis=0), ins.max(axis=0)
+        cell = self.config.cell
         worst = 0
         for k in (0, 1):
             o = 1 - k
             prefix = self.prefix[k]
-            need = min(SPLIT_WALL, 0.5 * (hi[o] - lo[o])) / CELL
+            need = min(self.config.split_wall, 0.5 * (hi[o] - lo[o])) / cell
             rows = np.arange(max(self._row(k, lo[k]) + 1, 0),
                              min(self._row(k, hi[k]), len(prefix)))
             if not len(rows):
@@ -138,11 +130,11 @@ class AxisWalls:
             rows = rows[prefix[rows, c1] - prefix[rows, c0] >= need]
             if not len(rows):
                 continue
-            line = (rows + self.origin[k] + 0.5) * CELL
+            line = (rows + self.origin[k] + 0.5) * cell
             along = np.sort(ins[:, k])
             # Edges within a cell of the line are on neither side.
-            below = np.searchsorted(along, line - CELL)
-            above = len(along) - np.searchsorted(along, line + CELL)
+            below = np.searchsorted(along, line - cell)
+            above = len(along) - np.searchsorted(along, line + cell)
             worst = max(worst, int(np.max(np.minimum(below, above))))
         return worst / len(ins)
 
@@ -154,7 +146,7 @@ class AxisWalls:
         through = total = 0
         for n in crossings:
             a, b = u[n], u[n + 1]
-            if np.hypot(*(b - a)) > CROSSING_STEP:
+            if np.hypot(*(b - a)) > self.config.crossing_step:
                 continue
             outer = b if inside[n] else a
             # The boundary crossed: across axis k (a side where u_k is constant).
@@ -164,17 +156,21 @@ class AxisWalls:
         return through / total if total else 1.0
 
     def _in_opening(self, k, crossing) -> bool:
-        """Wall along the line u_k = crossing_k on both sides of the crossing."""
+        """Wall along the line u_k = crossing_k on both sides of the crossing: at least
+        opening_run of it between opening_near and opening_far from the crossing, within
+        opening_band of the line (which lies halfway between the last edge inside and the
+        first outside, so a few cm to a few dm off the wall)."""
+        c = self.config
         rows = self.rows[k]
-        r0 = max(self._row(k, crossing[k] - OPENING_BAND), 0)
-        r1 = min(self._row(k, crossing[k] + OPENING_BAND) + 1, len(rows))
+        r0 = max(self._row(k, crossing[k] - c.opening_band), 0)
+        r1 = min(self._row(k, crossing[k] + c.opening_band) + 1, len(rows))
         if r1 <= r0:
             return False
         band = rows[r0:r1].any(axis=0)
         for sign in (-1.0, 1.0):
             ends = sorted(self._column(k, crossing[1 - k] + sign * d)
-                          for d in (OPENING_NEAR, OPENING_FAR))
+                          for d in (c.opening_near, c.opening_far))
             c0, c1 = max(ends[0], 0), min(ends[1] + 1, len(band))
-            if c1 <= c0 or band[c0:c1].sum() * CELL < OPENING_RUN:
+            if c1 <= c0 or band[c0:c1].sum() * c.cell < c.opening_run:
                 return False
         return True

@@ -1,8 +1,8 @@
 """Model extensions, one module per physical effect, estimated in the calibration graph.
 
-    LIBRARY[name](EffectData) → an effect; model.build_problem / model.extend_problem put
-    it in the graph (see base.ModelEffect for the hooks). Effects of kind "noise" change
-    the noise model instead (see noise_fit).
+    LIBRARY[name](EffectData[, DiagnoseConfig]) → an effect; model.build_problem /
+    model.extend_problem put it in the graph (see base.ModelEffect for the hooks). Effects
+    of kind "noise" change the noise model instead (see noise_fit).
 """
 from sclam_ros.diagnosis.effects.base import EffectData, ModelEffect
 from sclam_ros.diagnosis.effects.floor_noise import FloorNoise

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sclam_ros.diagnosis.config import DiagnoseConfig
+
 
 @dataclass
 class EffectData:
@@ -98,17 +100,18 @@ class ModelEffect:
     # one (which the search overfits).
     searched = False
     # NLL (nats) by which the place a search chose fits worse than the search's best (a
-    # region moved by the walls: FloorNoise); _evaluate adds it back, so that the
+    # region moved by the walls: FloorNoise); evidence.evaluate adds it back, so that the
     # selection tests the statistic its penalty was set on. 0 for every other effect.
     search_deficit = 0.0
     # The regressors (diagnosis/regressors.py) that describe this effect's footprint in the
     # odometry residuals. When another regressor explains more of the structure than these
-    # do, the effect would only stand in for that cause and is not selected (_evaluate).
+    # do, the effect would only stand in for that cause and is not selected (evidence.py).
     # Empty: not checked.
     signature: tuple = ()
 
-    def __init__(self, data: EffectData):
+    def __init__(self, data: EffectData, config: DiagnoseConfig = DiagnoseConfig()):
         self.data = data
+        self.config = config  # what a noise effect's search reads (the others ignore it)
 
     def bends(self, model: str) -> bool:
         """Whether the effect's hooks act on `model` ("odometry" or "laser") edges."""

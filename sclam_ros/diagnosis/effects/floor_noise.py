@@ -3,15 +3,15 @@
 One region of the map, a rectangle found from the residuals, whose odometry noise
 is higher than the rest's. Only the noisier side is searched: the effect is a floor
 the wheels slip more on, and a quieter rectangle is the complement of a noisy region
-that a rectangle fits worse (on one room's carpet, 2 of 5 seeds found a quieter
-rectangle elsewhere, ratio ≈ 0.5, when both sides were searched). The rectangle is
-searched over a 0.5 m grid laid along the map's own axes (the headings of straight
+that a rectangle fits worse (searching both sides can find a quieter rectangle elsewhere
+on a run with one noisy room). The rectangle is searched over a grid (FloorNoiseConfig.cell)
+laid along the map's own axes (the headings of straight
 driving, modulo 90°: walls, and so rooms and their floors, run along them; the odometry
-frame starts at an arbitrary heading). For every rectangle holding at least MIN_EDGES
+frame starts at an arbitrary heading). For every rectangle holding at least min_edges
 edges, and leaving as many outside, the maximum-likelihood factor on the odometry
 covariance is taken inside and outside; of the rectangles whose inside factor is the
 larger, the one with the largest likelihood gain wins, unless the recording's scans
-give a map of walls (EffectData.walls): then, of the rectangles within WITHIN of the
+give a map of walls (EffectData.walls): then, of the rectangles within `within` of the
 largest gain, the one whose boundary the walls support best (diagnosis/wall_map.py: it
 is left through doors, and no wall runs through it). Its sides are then placed halfway
 between its outermost edges and the nearest edges left out, so a held-out pass through
@@ -22,12 +22,11 @@ how the region differs, never a misfit of the overall wheel noise. They are fitt
 the laser-vs-odometry disagreements, whose covariance is λ·(wheels' part) + (scan match
 and the odometry's other parts), not to the χ²/dof of the odometry residuals of a
 joint fit: the poses hand part of every disagreement to the scan matches, more of it
-the noisier the odometry, which pulls that ratio towards 1 (measured on a simulated
-floor with variance ratio 4: 2.4).
+the noisier the odometry, which pulls that ratio towards 1.
 
 (Not fixed cells, e.g. four split at the route's medians: a room whose edges fall
-across two cells dilutes into both; on one room's carpet with variance ratio 2.4 such
-cells reached a likelihood ratio of 6.6 against 10.4 for the true region.)
+across two cells dilutes into both, and its likelihood ratio with it.) The measurements
+behind these choices: docs/decisions/diagnose.md.
 """
 from __future__ import annotations
 
@@ -35,6 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sclam_ros.core import se2
+from sclam_ros.diagnosis.config import DiagnoseConfig
 from sclam_ros.diagnosis.effects.base import ModelEffect
 from sclam_ros.diagnosis.effects.noise_fit import ml_factor, ml_factor_with_sigma, nll_profile
 
@@ -58,37 +58,14 @@ class FloorNoise(ModelEffect):
     units = "variance ratio (inside the region / outside)"
     doc = "odometry noise of one rectangular region of the map, found from the residuals"
     # For the BIC: the region's factor and its place, the search over places counted as
-    # one parameter. On 30 simulated runs without a floor effect (the benchmark's clean
-    # scenario, seeds 1-30, 180 s, 600 edges: 2·ln(edges) = 12.8) the best (noisier)
-    # rectangle's likelihood ratio stayed below it on all 30 (at most 11.7); one room's
-    # carpet reached 14.5-38.6 on the 9 of seeds 1-10 that enter the room. Because the
-    # place is searched, its held-out likelihood ratio must clear a penalty too
-    # (searched = True).
+    # one parameter: it keeps the best noisier rectangle of runs without a floor effect
+    # below its penalty (docs/decisions/diagnose.md). Because the place is searched, its
+    # held-out likelihood ratio must clear a penalty too (searched = True).
     dim = 2
     searched = True
-    # A region's factor from fewer edges is too uncertain to tell floors apart (from 20
-    # edges of 3 components: ±26 % at 1σ for Gaussian disagreements).
-    MIN_EDGES = 40
-    CELL = 0.5  # m, grid of the rectangles' sides
-    # An edge farther than this from every fitted edge is on floor the fit has not seen:
-    # it gets the overall factor, neither the region's nor the rest's. (Without it, a
-    # held-out block driving where the training blocks did not was scored as "the rest":
-    # on a run whose quieter half was the region found, every unseen edge was taken for
-    # the noisy floor, held-out gain −0.047 nats/edge at a likelihood ratio of 40.)
-    COVERAGE = 1.0  # m
-    LEVELS = np.linspace(np.log(1 / 8), np.log(8), 31)  # factors scanned (then refined)
-    # Rectangles whose likelihood gain is within WITHIN of the best are not told apart by
-    # the data: about one parameter's BIC penalty (ln(600 edges) / 2 = 3.2 nats on a
-    # 180 s run). Where the laser saw walls (EffectData.walls), of those the one whose
-    # boundary the walls support best is taken (diagnosis/wall_map.py). On one room's
-    # carpet, seeds 1-10, the likelihood's best rectangle and the room overlap by
-    # 0.75-0.94, the rectangle the walls bound by 0.84-0.99 (`bench/diagnose_effects.py
-    # --scenarios carpet --seeds 10 [--without-walls]`).
-    WITHIN = 3.0  # nats
-    MAX_CANDIDATES = 2000  # of the best gains; routes without a noisier floor have many
 
-    def __init__(self, data):
-        super().__init__(data)
+    def __init__(self, data, config=DiagnoseConfig()):
+        super().__init__(data, config)
         self.angle = 0.0
         self.lo = np.full(2, np.inf)  # empty region until fitted
         self.hi = np.full(2, -np.inf)
@@ -99,9 +76,15 @@ class FloorNoise(ModelEffect):
         self.wall_support = None  # wall_map score of the region (None: no walls)
         # NLL (nats) by which the region the walls chose fits the edges worse than the
         # likelihood's best rectangle (0: the same). The selection tests the search's
-        # best (diagnose._evaluate): its likelihood ratio on runs without a floor effect is
+        # best (evidence.evaluate): its likelihood ratio on runs without a floor effect is
         # what the penalty was set on; the walls choose the place, not whether there is one.
         self.search_deficit = 0.0
+
+    @property
+    def levels(self) -> np.ndarray:
+        """The log factors the search scans: the range a fitted factor's σ is judged
+        against (identifiability)."""
+        return self.config.floor.levels
 
     def _aligned(self, pose_i, pose_j):
         """Edge mid-points in the map's axes."""
@@ -115,11 +98,13 @@ class FloorNoise(ModelEffect):
     def fit(self, pose_i, pose_j, nll):
         """Find the region and its factor from the edges (pose_i, pose_j) and nll
         (per-edge factors (m,) → per-edge NLL (m,))."""
+        floor, log_range = self.config.floor, self.config.noise.log_range
         self.angle = principal_angle(self.data.positions)
         u = self._aligned(pose_i, pose_j)
         walls = self.data.walls
-        candidates = _near_best_rectangles(u, nll_profile(nll, len(u), self.LEVELS), self.CELL,
-                                           self.MIN_EDGES, 0.0 if walls is None else self.WITHIN)
+        candidates = _near_best_rectangles(u, nll_profile(nll, len(u), floor.levels), floor.cell,
+                                           floor.min_edges, 0.0 if walls is None else floor.within,
+                                           floor.max_candidates)
         if not candidates:
             return
         chosen = candidates[0][1]
@@ -131,12 +116,12 @@ class FloorNoise(ModelEffect):
                       for _, inside in candidates]
             pick = int(np.argmax(scores))  # the first (best gain) of ties
             chosen, self.wall_support = candidates[pick][1], scores[pick]
-        self.lo, self.hi = _with_margins(u, chosen)
+        self.lo, self.hi = _with_margins(u, chosen, floor.cell)
         self.seen = cKDTree(u)
         inside = self.inside(pose_i, pose_j)
-        overall = ml_factor(nll, np.ones(len(u), bool))
-        inside_factor, inside_sigma = ml_factor_with_sigma(nll, inside)
-        outside_factor, outside_sigma = ml_factor_with_sigma(nll, ~inside)
+        overall = ml_factor(nll, np.ones(len(u), bool), log_range)
+        inside_factor, inside_sigma = ml_factor_with_sigma(nll, inside, log_range)
+        outside_factor, outside_sigma = ml_factor_with_sigma(nll, ~inside, log_range)
         self.inside_scale = inside_factor / overall
         self.outside_scale = outside_factor / overall
         # The two factors come from disjoint edges: their logs' variances add. The
@@ -145,17 +130,18 @@ class FloorNoise(ModelEffect):
         self.edges_inside = int(inside.sum())
         if chosen is not candidates[0][1]:
             # Both as the model uses them: their sides moved out by the margins.
-            lo, hi = _with_margins(u, candidates[0][1])
+            lo, hi = _with_margins(u, candidates[0][1], floor.cell)
             best = np.all((u >= lo) & (u <= hi), axis=1)
-            self.search_deficit = max(_region_nll(nll, inside, overall)
-                                      - _region_nll(nll, best, overall), 0.0)
+            self.search_deficit = max(_region_nll(nll, inside, overall, log_range)
+                                      - _region_nll(nll, best, overall, log_range), 0.0)
 
     def scale_of(self, pose_i, pose_j):
         if self.seen is None:
             return np.ones(len(pose_i))
         u = self._aligned(pose_i, pose_j)
         inside = np.all((u >= self.lo) & (u <= self.hi), axis=1)
-        unseen = self.seen.query(u, distance_upper_bound=self.COVERAGE)[0] > self.COVERAGE
+        coverage = self.config.floor.coverage
+        unseen = self.seen.query(u, distance_upper_bound=coverage)[0] > coverage
         return np.where(unseen, 1.0, np.where(inside, self.inside_scale, self.outside_scale))
 
     def value(self, p=None):
@@ -185,17 +171,18 @@ class FloorNoise(ModelEffect):
         }}
 
 
-def _region_nll(nll, inside, overall) -> float:
+def _region_nll(nll, inside, overall, log_range) -> float:
     """Summed NLL of the edges with the ML factors inside and outside `inside`, relative
     to the `overall` one (as scale_of gives them)."""
-    scale = np.where(inside, ml_factor(nll, inside), ml_factor(nll, ~inside)) / overall
+    scale = np.where(inside, ml_factor(nll, inside, log_range),
+                     ml_factor(nll, ~inside, log_range)) / overall
     return float(np.sum(nll(scale)))
 
 
-def _near_best_rectangles(u, profile, cell, min_edges, within):
+def _near_best_rectangles(u, profile, cell, min_edges, within, max_candidates):
     """[(gain, edges inside (m,) bool)] of the grid rectangles, noisier inside than
     outside, whose likelihood gain is within `within` of the largest: best first,
-    distinct edge sets, at most MAX_CANDIDATES ([] if there is none).
+    distinct edge sets, at most `max_candidates` ([] if there is none).
 
     profile (m, G): each edge's NLL at G common factors. With prefix sums over the grid
     cells, a rectangle's NLL at every factor is four look-ups, so all rectangles of the
@@ -244,14 +231,14 @@ def _near_best_rectangles(u, profile, cell, min_edges, within):
             if key not in seen:
                 seen.add(key)
                 found.append((float(gains[n]), row))
-                if len(found) == FloorNoise.MAX_CANDIDATES:
+                if len(found) == max_candidates:
                     return found
     return found
 
 
-def _with_margins(u, inside):
+def _with_margins(u, inside, cell):
     """The rectangle around the inside edges, each side halfway to the nearest edge left
-    out beyond it (one cell beyond if there is none)."""
+    out beyond it (one `cell` beyond if there is none)."""
     lo, hi = u[inside].min(axis=0), u[inside].max(axis=0)
     new_lo, new_hi = lo.copy(), hi.copy()
     for axis in (0, 1):
@@ -259,6 +246,6 @@ def _with_margins(u, inside):
         beside = ~inside & (u[:, other] >= lo[other]) & (u[:, other] <= hi[other])
         below = u[beside & (u[:, axis] < lo[axis]), axis]
         above = u[beside & (u[:, axis] > hi[axis]), axis]
-        new_lo[axis] = 0.5 * (lo[axis] + below.max()) if len(below) else lo[axis] - FloorNoise.CELL
-        new_hi[axis] = 0.5 * (hi[axis] + above.min()) if len(above) else hi[axis] + FloorNoise.CELL
+        new_lo[axis] = 0.5 * (lo[axis] + below.max()) if len(below) else lo[axis] - cell
+        new_hi[axis] = 0.5 * (hi[axis] + above.min()) if len(above) else hi[axis] + cell
     return new_lo, new_hi

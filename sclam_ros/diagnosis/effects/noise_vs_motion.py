@@ -7,17 +7,16 @@ disagreements (see noise_fit) and divided by the one factor of all edges, so tha
 effect models how the noise changes with the regressor, not the overall scale. The
 stated noise already grows with the wheel angle turned (a random walk per radian); this
 is what remains beyond it. Reported: the variance ratio between the regressor's 90th and
-10th percentile over the recording.
+10th percentile over the recording. The slope is bounded (NoiseConfig.max_slope).
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import minimize
 
+from sclam_ros.diagnosis.config import DiagnoseConfig
 from sclam_ros.diagnosis.effects.base import ModelEffect
-from sclam_ros.diagnosis.effects.noise_fit import LOG_RANGE, ml_factor
-
-MAX_SLOPE = 3.0  # |a|: at most a factor e³ per standard deviation of the regressor
+from sclam_ros.diagnosis.effects.noise_fit import ml_factor
 
 
 def pose_speeds(data) -> np.ndarray:
@@ -34,8 +33,8 @@ class NoiseVsMotion(ModelEffect):
     kind = "noise"
     dim = 1
 
-    def __init__(self, data):
-        super().__init__(data)
+    def __init__(self, data, config=DiagnoseConfig()):
+        super().__init__(data, config)
         self.slope = 0.0
         self.mean, self.scale = 0.0, 1.0
         self.offset = 0.0  # log factor at z = 0, relative to all edges' factor
@@ -53,16 +52,18 @@ class NoiseVsMotion(ModelEffect):
         self.mean, self.scale = float(np.mean(x)), float(np.std(x)) or 1.0
         z = self._standardised(x)
         self.spread = float(np.ptp(np.percentile(z, [10, 90])))
-        overall = np.log(ml_factor(nll, np.ones(len(z), bool)))
+        log_range = self.config.noise.log_range
+        overall = np.log(ml_factor(nll, np.ones(len(z), bool), log_range))
 
         def total(p):
             # Within the factors ml_factor searches: a small wheel-noise share lets the
             # simplex wander to factors whose exp overflows.
-            return float(np.sum(nll(np.exp(np.clip(p[1] + p[0] * z, -LOG_RANGE, LOG_RANGE)))))
+            return float(np.sum(nll(np.exp(np.clip(p[1] + p[0] * z, -log_range, log_range)))))
 
         best = minimize(total, np.array([0.0, overall]), method="Nelder-Mead",
                         options={"xatol": 1e-4, "fatol": 1e-6})
-        self.slope = float(np.clip(best.x[0], -MAX_SLOPE, MAX_SLOPE))
+        max_slope = self.config.noise.max_slope
+        self.slope = float(np.clip(best.x[0], -max_slope, max_slope))
         self.offset = float(best.x[1] - overall)
 
     def _standardised(self, x):

@@ -4,26 +4,23 @@ A laser whose beams sweep over a time T (beam at angle α taken T·(α − α_mi
 the stamp) sees each point from where it is at that beam's time (sclam_ros.sim's
 ``scan_motion``; the front end does not de-skew). Matched against the previous scan, a
 scan registers as the laser pose of some instant inside its sweep, with a deformation on
-top. Two errors of a match z between scans i and j follow, and were measured on
-simulated 10 Hz sweeps over three routes of the office world (90 s each):
+top. Two errors of a match z between scans i and j follow (their sizes on simulated
+sweeps: docs/decisions/diagnose.md):
 
 1. delay τ: the match is the laser's motion between instants τ after the two stamps,
    τ ≈ T/2, the mean beam time (every beam constrains the heading alike). To first
    order that is a clock offset, the correction dφ + τ·(ω_j − ω_i) of the wheel
    increments that ``time_offset`` makes with δ = τ, and no regressor of these data
-   separates the two. Measured τ: 0.048, 0.051, 0.045 s for T = 0.1 s; 0.024 s for
-   T = 0.05 s.
+   separates the two.
 2. shift g·(ω_j − ω_i): turning at ω, beam α is rotated by ω·T·(α − α_mid)/span
    against the mid-sweep pose, so walls ahead and behind (across the seam, where the
    first and last beams meet) appear displaced along the laser's x by about ω·T times
    their lateral extent. When the turn rate changes between two scans, the match moves
-   by g·Δω, g = T·L with L a length of the scene (measured g_x = 0.039, 0.051, 0.036 m·s
-   for T = 0.1 s, 0.018 m·s for T = 0.05 s; the laser x disagreement after a clock-offset
-   fit correlates 0.85 with Δω). At a constant turn rate both scans are deformed alike
-   and the match is right (on-the-spot turns at 1 rad/s: no error), so the shift is
-   additive in Δω, not a fixed offset of each scan's pose (which, turned with the
-   scan, would show at constant turning: tried, it put 3-4 mm of sideways error on
-   on-the-spot turns whose matches had none).
+   by g·Δω, g = T·L with L a length of the scene. At a constant turn rate both scans
+   are deformed alike and the match is right (on-the-spot turns: no error), so the shift
+   is additive in Δω, not a fixed offset of each scan's pose (which, turned with the
+   scan, would show at constant turning and put sideways error on on-the-spot turns
+   whose matches have none).
    Nothing in the wheels produces this: it is what tells a sweep from a clock offset.
 
 The model: the odometry edge is predicted over the delayed window, dφ + τ·(ω_j − ω_i)
