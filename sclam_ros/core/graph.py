@@ -375,11 +375,16 @@ def build_problem(inputs: GraphInputs, params, calibration, poses=None,
                             name="calibration_prior"),
         *extra_factors,
     ]
-    # The scan matches' robust kernel: an ICP that slid along a corridor is a gross outlier
-    # and must not drag the calibration; Cauchy's influence decays far outside.
     return Problem(values, factor_list, fixed={"poses": gauge_anchors(inputs)},
-                   kernels={"laser": CauchyKernel(config.laser_kernel_scale)},
-                   corrections=corrections, linear=linear)
+                   kernels={"laser": laser_kernel(config)}, corrections=corrections,
+                   linear=linear)
+
+
+def laser_kernel(config: GraphConfig = GraphConfig()) -> CauchyKernel:
+    """The scan matches' robust kernel: an ICP that slid along a corridor is a gross outlier
+    and must not drag the calibration; Cauchy's influence decays far outside. The diagnosis
+    scores edges with the same kernel."""
+    return CauchyKernel(config.laser_kernel_scale)
 
 
 def calibration_of(values: Values) -> np.ndarray:

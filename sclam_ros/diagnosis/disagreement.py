@@ -35,7 +35,7 @@ class Disagreement:
         scale = np.reshape(np.asarray(wheel_scale, float), (-1, 1, 1))
         cov = self.wheel_cov * scale + self.fixed_cov
         sq = np.einsum("mi,mij,mj->m", self.d, np.linalg.inv(cov), self.d)
-        return 0.5 * (graph_mod.LASER_KERNEL.rho(sq) + np.linalg.slogdet(cov)[1])
+        return 0.5 * (graph_mod.laser_kernel().rho(sq) + np.linalg.slogdet(cov)[1])
 
 
 @dataclass

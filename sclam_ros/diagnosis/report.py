@@ -22,7 +22,7 @@ ERROR_METRIC = (
 def error_metric(selection: SelectionConfig) -> str:
     """The report's description of its error (`error_metric`)."""
     return ERROR_METRIC.format(folds=selection.folds, noise_folds=selection.noise_folds,
-                               spread=selection.noise_fold_blocks, c=graph_mod.LASER_KERNEL.c)
+                               spread=selection.noise_fold_blocks, c=graph_mod.laser_kernel().c)
 
 
 def effect_json(ev: dict, selected_names) -> dict:
