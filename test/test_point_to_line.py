@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sclam_ros.frontend import point_to_line, wall_segments
+from sclam_ros.frontend import laser_noise, point_to_line, reference_lines, wall_segments
 from sclam_ros.core import se2
 from sclam_ros.sim.world import office_world
 
@@ -21,7 +21,7 @@ def test_refine_recovers_exact_motion_from_a_perturbed_start(motion):
     world = office_world()
     start = np.array([6.0, 3.0, 0.3])
     end = se2.compose(start, np.array(motion))
-    reference = point_to_line.ReferenceScan.from_points(scan_points(world, start))
+    reference = reference_lines.ReferenceScan.from_points(scan_points(world, start))
     z0 = np.array(motion) + [0.02, -0.015, 0.01]  # a scan matcher's answer, cm off
     z, used = point_to_line.refine(reference, scan_points(world, end), z0)
     assert used > 100
@@ -39,7 +39,7 @@ def test_refine_is_unbiased_along_walls_under_range_noise():
     for i in range(60):
         start = np.array([4.0 + 0.1 * i, 2.5, 0.0])
         motion = np.array([0.04, 0.0, 0.0])
-        reference = point_to_line.ReferenceScan.from_points(scan_points(world, start, 0.01, rng))
+        reference = reference_lines.ReferenceScan.from_points(scan_points(world, start, 0.01, rng))
         z, _ = point_to_line.refine(reference, scan_points(world, se2.compose(start, motion), 0.01, rng),
                                     motion * 0.97)
         errors.append(z - motion)
@@ -50,9 +50,9 @@ def test_refine_is_unbiased_along_walls_under_range_noise():
 
 def test_too_few_points_fall_back_to_the_initial_guess():
     pts = np.array([[1.0, 0.0], [1.0, 0.1], [1.0, 0.2]])
-    assert point_to_line.ReferenceScan.from_points(pts) is None
+    assert reference_lines.ReferenceScan.from_points(pts) is None
     line = np.column_stack([np.full(40, 2.0), np.linspace(-1, 1, 40)])
-    reference = point_to_line.ReferenceScan.from_points(line)
+    reference = reference_lines.ReferenceScan.from_points(line)
     z0 = np.array([0.01, 0.0, 0.0])
     z, used = point_to_line.refine(reference, line[:5], z0)
     assert used == 0 and np.allclose(z, z0)
@@ -124,8 +124,8 @@ def test_segment_lines_follow_a_noisy_wall():
     rng = np.random.default_rng(7)
     y = np.arange(-1.5, 1.5, 0.01)
     wall = np.column_stack([2.0 + rng.normal(0.0, 0.03, y.size), y])
-    narrow = point_to_line.ReferenceScan.from_points(wall)
-    wide = point_to_line.ReferenceScan.from_points(wall, noise=0.03)
+    narrow = reference_lines.ReferenceScan.from_points(wall)
+    wide = reference_lines.ReferenceScan.from_points(wall, noise=0.03)
     # Six beams pass the straightness test on most of the wall (their spread across it is
     # below 2 cm) with wrong normals; 30 beams over 0.3 m pass where the noise allows.
     assert len(narrow.points) > 0.8 * len(wall)
@@ -151,7 +151,7 @@ def test_segment_lines_keep_corners_out():
     for _ in range(20):
         ranges = true + rng.normal(0.0, 0.03, true.shape)
         points = np.column_stack([ranges * np.cos(bearings), ranges * np.sin(bearings)])
-        normals, anchors, keep = point_to_line.line_decisions(points, noise=0.03)
+        normals, anchors, keep = reference_lines.line_decisions(points, noise=0.03)
         assert keep.sum() > 0.95 * len(points) and not keep[near_corner].any()
         assert np.all(np.abs(np.sum(normals * wall_normal, axis=1))[keep] > np.cos(0.05))
         off_wall = np.where(on_x_wall, anchors[:, 0] - 2.0, anchors[:, 1] - 3.0)[keep]
@@ -175,7 +175,7 @@ def _office_scans(noise, count=12, seed=3):
 @pytest.mark.parametrize("noise", [0.003, 0.01, 0.03, 0.05])
 def test_range_noise_is_measured_from_the_scan(noise):
     """The second-difference estimate recovers the simulated range noise (within 25 %)."""
-    estimates = [point_to_line.range_noise(scan) for scan in _office_scans(noise)]
+    estimates = [laser_noise.range_noise(scan) for scan in _office_scans(noise)]
     assert np.median(estimates) == pytest.approx(noise, rel=0.25)
 
 
@@ -207,7 +207,7 @@ def test_how_the_range_noise_grows_with_range_is_measured_from_the_scans(base, p
     assert matcher.growth == pytest.approx(growth, rel=within)
     assert matcher._reference.growth == matcher.growth
     # The benches' judgement without a matcher is the matcher's.
-    assert point_to_line.judged_laser(scans) == (np.median(matcher.range_noises), matcher.growth)
+    assert laser_noise.judged_laser(scans) == (np.median(matcher.range_noises), matcher.growth)
 
 
 def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():
@@ -235,7 +235,7 @@ def test_refinement_covariance_is_large_where_the_walls_do_not_fix_the_motion():
     room = corridor + [((-3.0, -1.0), (-3.0, 1.0)), ((3.0, -1.0), (3.0, 1.0))]
     motion = np.array([0.05, 0.0, 0.0])
     for segments, closed in ((corridor, False), (room, True)):
-        reference = point_to_line.ReferenceScan.from_points(_walls(segments))
+        reference = reference_lines.ReferenceScan.from_points(_walls(segments))
         scan = se2.transform_points(se2.inverse(motion), _walls(segments))
         scan = scan + rng.normal(0.0, 0.005, scan.shape)
         z, used, covariance = point_to_line.refine_with_covariance(reference, scan, motion)
@@ -276,10 +276,10 @@ def test_noisy_wall_refinement_is_not_held_at_its_start():
     for _ in range(60):
         start = np.array([rng.uniform(-1.0, 0.5), rng.uniform(-0.8, 0.8), rng.uniform(-0.3, 0.3)])
         returns = _box_room_points(start, 0.03, rng)
-        lines = point_to_line.ReferenceScan.from_points(returns, noise=0.03)
+        lines = reference_lines.ReferenceScan.from_points(returns, noise=0.03)
         # The same lines, paired with and measured from the returns themselves.
-        normals, _, keep = point_to_line.line_decisions(returns, noise=0.03)
-        points = point_to_line.ReferenceScan.of_kept(returns, normals, returns, keep)
+        normals, _, keep = reference_lines.line_decisions(returns, noise=0.03)
+        points = reference_lines.ReferenceScan.of_kept(returns, normals, returns, keep)
         new = _box_room_points(se2.compose(start, motion), 0.03, rng)
         for name, reference in (("lines", lines), ("points", points)):
             for factor in (0.9, 1.1):
@@ -299,7 +299,7 @@ def test_line_anchors_stay_on_the_wall_near_corners():
     rng = np.random.default_rng(3)
     offsets = []
     for _ in range(200):  # the mean's standard error: about 0.3 mm
-        reference = point_to_line.ReferenceScan.from_points(_box_room_points(np.zeros(3), 0.03, rng), noise=0.03)
+        reference = reference_lines.ReferenceScan.from_points(_box_room_points(np.zeros(3), 0.03, rng), noise=0.03)
         # the far wall (x = 2.5) between 0.1 and 0.5 m from its corners with the side walls
         near_corner = ((np.abs(reference.points[:, 0] - 2.5) < 0.15)
                        & (np.abs(np.abs(reference.points[:, 1]) - 1.7) < 0.2))
@@ -333,7 +333,7 @@ def _corridor_pair_errors(usable_range, draws=80, seed=3, cut=True, fit_noise=0.
     motion = np.array([step, 0.0, 0.0])
     errors = []
     for _ in range(draws):
-        reference = point_to_line.ReferenceScan.from_points(points(np.zeros(3)), fit_noise, usable_range)
+        reference = reference_lines.ReferenceScan.from_points(points(np.zeros(3)), fit_noise, usable_range)
         z, used = point_to_line.refine(reference, points(motion), motion)
         assert used > 100
         errors.append(z[0] - step)
@@ -348,7 +348,7 @@ def test_walls_at_the_range_limit_shorten_the_motion_less():
     clearance (CLEAR_OF_LIMIT) judged by the anchors (where the beams meet the fitted
     lines, not where the noise put the returns) it costs nothing that 80 draws resolve
     (−0.5 to +0.4 mm, seeds 1-5)."""
-    usable = 5.0 - point_to_line.CLEAR_OF_LIMIT * 0.03
+    usable = 5.0 - reference_lines.CLEAR_OF_LIMIT * 0.03
     plain = (_corridor_pair_errors(np.inf, fit_noise=None)
              - _corridor_pair_errors(np.inf, fit_noise=None, cut=False))
     protected = _corridor_pair_errors(usable) - _corridor_pair_errors(np.inf, cut=False)
@@ -379,7 +379,7 @@ def test_anchors_sit_on_their_walls_under_range_proportional_noise():
             ranges = true[seen] + rng.standard_normal(seen.sum()) * (0.02 + 0.01 * true[seen])
             returned = (ranges <= 12.0) & (rng.random(seen.sum()) >= 0.1)
             points = np.column_stack([ranges * np.cos(angles[seen]), ranges * np.sin(angles[seen])])[returned]
-            reference = point_to_line.ReferenceScan.from_points(points, 0.056, 12.0 - 3 * 0.056)
+            reference = reference_lines.ReferenceScan.from_points(points, 0.056, 12.0 - 3 * 0.056)
             p, n = reference.anchors, reference.normals
             bearing = np.arctan2(p[:, 1], p[:, 0])
             wall = world.raycast(pose, bearing, 24.0)  # the return's own beam
@@ -407,7 +407,7 @@ def _room_with_trunk(angles, trunk=(3.0, 0.0), radius=0.3):
 def test_object_extent_tells_a_trunk_from_the_walls_behind_it():
     ranges = _room_with_trunk(ANGLES)
     points = np.column_stack([ranges * np.cos(ANGLES), ranges * np.sin(ANGLES)])
-    extent = point_to_line._object_extent(points)
+    extent = reference_lines._object_extent(points)
     on_trunk = np.hypot(points[:, 0] - 3.0, points[:, 1]) < 0.31
     assert on_trunk.sum() >= 8
     # The trunk's visible half: at most its 0.6 m diameter.
@@ -416,7 +416,7 @@ def test_object_extent_tells_a_trunk_from_the_walls_behind_it():
     assert np.allclose(extent[~on_trunk], np.hypot(10.0, 10.0), atol=0.05)
     # Half a turn: its two ends are not consecutive returns, and its walls still one piece each side.
     half = (ANGLES > -np.pi / 2) & (ANGLES < np.pi / 2)
-    assert np.all(point_to_line._object_extent(points[half])[~on_trunk[half]] > 4.0)
+    assert np.all(reference_lines._object_extent(points[half])[~on_trunk[half]] > 4.0)
 
 
 def test_small_objects_get_no_line_on_a_noisy_laser():
@@ -424,8 +424,8 @@ def test_small_objects_get_no_line_on_a_noisy_laser():
     ranges = _room_with_trunk(ANGLES, trunk=(1.5, 0.5), radius=0.4) + rng.normal(0.0, 0.01, len(ANGLES))
     points = np.column_stack([ranges * np.cos(ANGLES), ranges * np.sin(ANGLES)])
     near_trunk = lambda p: np.hypot(p[:, 0] - 1.5, p[:, 1] - 0.5) < 0.45  # noqa: E731
-    plain = point_to_line.ReferenceScan.from_points(points)
-    ruled = point_to_line.ReferenceScan.from_points(points, small_objects=True)
+    plain = reference_lines.ReferenceScan.from_points(points)
+    ruled = reference_lines.ReferenceScan.from_points(points, small_objects=True)
     assert near_trunk(plain.points).sum() > 0  # its faces pass the straightness test
     assert near_trunk(ruled.points).sum() == 0
     assert len(ruled.points) == len(plain.points) - near_trunk(plain.points).sum()
@@ -450,7 +450,7 @@ def test_refinement_does_not_depend_on_the_beam_order(fit_noise, range_noise):
     fit of a 3 cm one, with its range-limit clearance.)"""
     world = office_world()
     rng = np.random.default_rng(5)
-    usable = 20.0 - point_to_line.CLEAR_OF_LIMIT * range_noise if fit_noise else np.inf
+    usable = 20.0 - reference_lines.CLEAR_OF_LIMIT * range_noise if fit_noise else np.inf
     flip, flip_xy = np.array([1.0, -1.0, -1.0]), np.array([1.0, -1.0])
     for start in ([6.0, 3.0, 0.3], [3.0, 7.75, 0.0], [12.0, 12.5, 2.0]):
         motion = np.array([0.15, 0.01, 0.05])
@@ -458,7 +458,7 @@ def test_refinement_does_not_depend_on_the_beam_order(fit_noise, range_noise):
         second = scan_points(world, se2.compose(np.array(start), motion), range_noise, rng)
         answers = []
         for a, b, z0 in ((first, second, motion), (first[::-1] * flip_xy, second[::-1] * flip_xy, motion * flip)):
-            reference = point_to_line.ReferenceScan.from_points(a, fit_noise, usable, small_objects=True)
+            reference = reference_lines.ReferenceScan.from_points(a, fit_noise, usable, small_objects=True)
             answers.append(point_to_line.refine_with_covariance(reference, b, z0))
         (z, used, covariance), (z_mirrored, used_mirrored, covariance_mirrored) = answers
         assert used > 100 and used_mirrored == used
@@ -484,16 +484,16 @@ def test_pairs_along_a_sparsely_sampled_wall_reach_between_its_returns():
     reference_points = _oblique_wall(spacing, np.radians(16.0), 27)
     halfway = _oblique_wall(spacing, np.radians(16.0), 26, offset=0.5)
     gaps = np.hypot(*np.diff(reference_points, axis=0).T)
-    assert gaps.min() > 2 * point_to_line.MAX_PAIR_DISTANCE
-    circle = point_to_line.ReferenceScan.from_points(reference_points)
-    ellipse = point_to_line.ReferenceScan.from_points(reference_points, beam_spacing=spacing)
+    assert gaps.min() > 2 * reference_lines.MAX_PAIR_DISTANCE
+    circle = reference_lines.ReferenceScan.from_points(reference_points)
+    ellipse = reference_lines.ReferenceScan.from_points(reference_points, beam_spacing=spacing)
     assert circle.reach is None
     z0 = np.zeros(3)
     assert point_to_line.refine(circle, halfway, z0)[1] < 20  # too few pairs: not refined
     z, used = point_to_line.refine(ellipse, halfway, z0)
     assert used >= 20 and np.allclose(z[1:], 0.0, atol=1e-6)
     # Off the wall by more than MAX_PAIR_DISTANCE: not paired, however sparse the beams.
-    off_wall = halfway + [0.0, 1.2 * point_to_line.MAX_PAIR_DISTANCE]
+    off_wall = halfway + [0.0, 1.2 * reference_lines.MAX_PAIR_DISTANCE]
     assert point_to_line.refine(ellipse, off_wall, z0)[1] == 0
 
 
@@ -507,9 +507,9 @@ def test_pairing_along_lines_changes_nothing_where_the_beams_are_dense():
     new = scan_points(world, se2.compose(start, motion), 0.01, rng)
     near = np.hypot(points[:, 0], points[:, 1]) < 3.0
     near_new = np.hypot(new[:, 0], new[:, 1]) < 3.0
-    circle = point_to_line.ReferenceScan.from_points(points[near])
-    ellipse = point_to_line.ReferenceScan.from_points(points[near], beam_spacing=np.radians(1.0))
-    assert np.all(ellipse.reach == point_to_line.MAX_PAIR_DISTANCE)
+    circle = reference_lines.ReferenceScan.from_points(points[near])
+    ellipse = reference_lines.ReferenceScan.from_points(points[near], beam_spacing=np.radians(1.0))
+    assert np.all(ellipse.reach == reference_lines.MAX_PAIR_DISTANCE)
     z_circle, _ = point_to_line.refine(circle, new[near_new], motion + 0.01)
     z_ellipse, _ = point_to_line.refine(ellipse, new[near_new], motion + 0.01)
     assert np.allclose(z_circle, z_ellipse, atol=1e-9)
@@ -532,7 +532,7 @@ def test_a_noisy_laser_measures_from_beam_lines_where_no_segment_is_long_enough(
     assert 6 <= on_side.sum() < wall_segments.MIN_SEGMENT_RETURNS
 
     segment_normals, _, segment_keep = wall_segments.wall_lines(points, 0.02)
-    normals, anchors, kept = point_to_line.line_decisions(points, noise=0.02)
+    normals, anchors, kept = reference_lines.line_decisions(points, noise=0.02)
     assert not segment_keep[on_side].any()
     assert kept[on_side].sum() >= on_side.sum() - 2  # the ends' neighbourhoods take in the gap
     assert np.array_equal(anchors[on_side], points[on_side])
@@ -555,7 +555,7 @@ def test_refinement_weighed_by_a_growing_range_noise_is_unbiased_and_tighter():
     clean = _box_room_points(start, 0.0, rng, **room)
     errors = {0.0: [], 0.5: []}
     for growth, found in errors.items():
-        reference = point_to_line.ReferenceScan.from_points(clean, 0.05, growth=growth)
+        reference = reference_lines.ReferenceScan.from_points(clean, 0.05, growth=growth)
         draws = np.random.default_rng(9)
         for _ in range(150):
             new = _box_room_points(se2.compose(start, motion), 0.0, draws, **room)
