@@ -2,8 +2,11 @@ import numpy as np
 import pytest
 
 from sclam_ros.frontend import laser_noise, point_to_line, reference_lines, wall_segments
+from sclam_ros.frontend.config import FrontendConfig, LaserNoiseConfig
 from sclam_ros.core import se2
 from sclam_ros.sim.world import office_world
+
+CONFIG = FrontendConfig()
 
 ANGLES = -np.pi + 2 * np.pi / 360 * np.arange(360)
 
@@ -222,6 +225,18 @@ def test_refined_matcher_fits_wide_lines_on_a_noisy_laser_only():
         assert len(matcher.range_noises) == 12
 
 
+def test_the_matcher_judges_the_laser_by_its_config():
+    """The noise from which a laser is noisy is the matcher's config's, not a module's."""
+    from sclam_ros.frontend.scan_matching import ScanMatcher, scan_to_points
+
+    for noisy_range, wide in ((CONFIG.laser_noise.noisy_range, False), (0.005, True)):
+        config = FrontendConfig(laser_noise=LaserNoiseConfig(noisy_range=noisy_range))
+        matcher = point_to_line.RefinedScanMatcher(ScanMatcher(), config)
+        for scan in _office_scans(0.01):
+            matcher._remember_reference(scan, scan_to_points(scan))
+        assert matcher.fits_segments == wide
+
+
 def _walls(segments, spacing=0.02):
     return np.concatenate([np.linspace(a, b, int(np.hypot(*np.subtract(b, a)) / spacing))
                            for a, b in segments])
@@ -345,10 +360,10 @@ def test_walls_at_the_range_limit_shorten_the_motion_less():
     the first scan places it too near and the motion toward it comes out short. Against
     the same noise draws without the driver's cut: on lines fitted over six beams with
     nothing left out, the cut shortens the motion by 4-5 mm of 150 (seeds 1 and 3). With the
-    clearance (CLEAR_OF_LIMIT) judged by the anchors (where the beams meet the fitted
+    clearance (ReferenceLinesConfig.clear_of_limit) judged by the anchors (where the beams meet the fitted
     lines, not where the noise put the returns) it costs nothing that 80 draws resolve
     (−0.5 to +0.4 mm, seeds 1-5)."""
-    usable = 5.0 - reference_lines.CLEAR_OF_LIMIT * 0.03
+    usable = 5.0 - CONFIG.reference_lines.clear_of_limit * 0.03
     plain = (_corridor_pair_errors(np.inf, fit_noise=None)
              - _corridor_pair_errors(np.inf, fit_noise=None, cut=False))
     protected = _corridor_pair_errors(usable) - _corridor_pair_errors(np.inf, cut=False)
@@ -407,7 +422,7 @@ def _room_with_trunk(angles, trunk=(3.0, 0.0), radius=0.3):
 def test_object_extent_tells_a_trunk_from_the_walls_behind_it():
     ranges = _room_with_trunk(ANGLES)
     points = np.column_stack([ranges * np.cos(ANGLES), ranges * np.sin(ANGLES)])
-    extent = reference_lines._object_extent(points)
+    extent = reference_lines._object_extent(points, CONFIG)
     on_trunk = np.hypot(points[:, 0] - 3.0, points[:, 1]) < 0.31
     assert on_trunk.sum() >= 8
     # The trunk's visible half: at most its 0.6 m diameter.
@@ -416,7 +431,7 @@ def test_object_extent_tells_a_trunk_from_the_walls_behind_it():
     assert np.allclose(extent[~on_trunk], np.hypot(10.0, 10.0), atol=0.05)
     # Half a turn: its two ends are not consecutive returns, and its walls still one piece each side.
     half = (ANGLES > -np.pi / 2) & (ANGLES < np.pi / 2)
-    assert np.all(reference_lines._object_extent(points[half])[~on_trunk[half]] > 4.0)
+    assert np.all(reference_lines._object_extent(points[half], CONFIG)[~on_trunk[half]] > 4.0)
 
 
 def test_small_objects_get_no_line_on_a_noisy_laser():
@@ -450,7 +465,7 @@ def test_refinement_does_not_depend_on_the_beam_order(fit_noise, range_noise):
     fit of a 3 cm one, with its range-limit clearance.)"""
     world = office_world()
     rng = np.random.default_rng(5)
-    usable = 20.0 - reference_lines.CLEAR_OF_LIMIT * range_noise if fit_noise else np.inf
+    usable = 20.0 - CONFIG.reference_lines.clear_of_limit * range_noise if fit_noise else np.inf
     flip, flip_xy = np.array([1.0, -1.0, -1.0]), np.array([1.0, -1.0])
     for start in ([6.0, 3.0, 0.3], [3.0, 7.75, 0.0], [12.0, 12.5, 2.0]):
         motion = np.array([0.15, 0.01, 0.05])
@@ -476,15 +491,15 @@ def _oblique_wall(spacing, first_bearing, count, offset=0.0):
 
 def test_pairs_along_a_sparsely_sampled_wall_reach_between_its_returns():
     """A new point halfway between two reference returns on a wall seen at a glancing angle
-    (its returns 0.3-1.9 m apart) lies more than MAX_PAIR_DISTANCE from both: within a circle
+    (its returns 0.3-1.9 m apart) lies more than max_pair_distance from both: within a circle
     it is paired only if a return's own noise happens to bring it nearer. Gated along the
-    wall by the beams' spacing there (ALONG_LINE) it is paired, and across the wall the gate
-    stays MAX_PAIR_DISTANCE."""
+    wall by the beams' spacing there it is paired, and across the wall the gate stays
+    max_pair_distance."""
     spacing = np.radians(1.0)
     reference_points = _oblique_wall(spacing, np.radians(16.0), 27)
     halfway = _oblique_wall(spacing, np.radians(16.0), 26, offset=0.5)
     gaps = np.hypot(*np.diff(reference_points, axis=0).T)
-    assert gaps.min() > 2 * reference_lines.MAX_PAIR_DISTANCE
+    assert gaps.min() > 2 * CONFIG.pairing.max_pair_distance
     circle = reference_lines.ReferenceScan.from_points(reference_points)
     ellipse = reference_lines.ReferenceScan.from_points(reference_points, beam_spacing=spacing)
     assert circle.reach is None
@@ -492,8 +507,8 @@ def test_pairs_along_a_sparsely_sampled_wall_reach_between_its_returns():
     assert point_to_line.refine(circle, halfway, z0)[1] < 20  # too few pairs: not refined
     z, used = point_to_line.refine(ellipse, halfway, z0)
     assert used >= 20 and np.allclose(z[1:], 0.0, atol=1e-6)
-    # Off the wall by more than MAX_PAIR_DISTANCE: not paired, however sparse the beams.
-    off_wall = halfway + [0.0, 1.2 * reference_lines.MAX_PAIR_DISTANCE]
+    # Off the wall by more than max_pair_distance: not paired, however sparse the beams.
+    off_wall = halfway + [0.0, 1.2 * CONFIG.pairing.max_pair_distance]
     assert point_to_line.refine(ellipse, off_wall, z0)[1] == 0
 
 
@@ -509,7 +524,7 @@ def test_pairing_along_lines_changes_nothing_where_the_beams_are_dense():
     near_new = np.hypot(new[:, 0], new[:, 1]) < 3.0
     circle = reference_lines.ReferenceScan.from_points(points[near])
     ellipse = reference_lines.ReferenceScan.from_points(points[near], beam_spacing=np.radians(1.0))
-    assert np.all(ellipse.reach == reference_lines.MAX_PAIR_DISTANCE)
+    assert np.all(ellipse.reach == CONFIG.pairing.max_pair_distance)
     z_circle, _ = point_to_line.refine(circle, new[near_new], motion + 0.01)
     z_ellipse, _ = point_to_line.refine(ellipse, new[near_new], motion + 0.01)
     assert np.allclose(z_circle, z_ellipse, atol=1e-9)
@@ -529,7 +544,7 @@ def test_a_noisy_laser_measures_from_beam_lines_where_no_segment_is_long_enough(
     ranges = ranges[keep] + rng.normal(0.0, 0.002, keep.sum())
     points = np.column_stack([ranges * np.cos(bearing[keep]), ranges * np.sin(bearing[keep])])
     on_side = points[:, 0] > 7.0
-    assert 6 <= on_side.sum() < wall_segments.MIN_SEGMENT_RETURNS
+    assert 6 <= on_side.sum() < CONFIG.wall_segments.min_segment_returns
 
     segment_normals, _, segment_keep = wall_segments.wall_lines(points, 0.02)
     normals, anchors, kept = reference_lines.line_decisions(points, noise=0.02)

@@ -2,13 +2,15 @@
 
 KISS-ICP registers points to points. On walls sampled by a fixed beam pattern, a point of
 the new scan is paired with the nearest *sample* of the old one, which sits where the old
-beam hit, so the registration is pulled back toward zero motion: measured on the simulator
-(PowerBot, 150 s, 1 cm range noise) scan-match translations were 0.8 % short, enough to
-bias the wheel radii and base by 3σ. Measuring the distance to the wall's *line* instead
-(normal · (q − p)) leaves the sliding along the wall free, and the bias goes away.
+beam hit, so the registration is pulled back toward zero motion and the matches come out
+short. Measuring the distance to the wall's *line* instead (normal · (q − p)) leaves the
+sliding along the wall free, and the bias goes away. Measured: docs/decisions/
+point_to_line.md, "Point-to-line, not point-to-point".
 
 The refinement starts from KISS-ICP's answer (robust, already close) and runs a few
-Gauss-Newton steps with a Huber weight against the previous scan's points and normals.
+Gauss-Newton steps with a Huber weight against the reference scan's lines
+(reference_lines.py), fitted as the laser's judged noise says (laser_noise.py). Its tuning
+is RefinementConfig and PairingConfig (config.py).
 """
 from __future__ import annotations
 
@@ -18,57 +20,45 @@ from collections import Counter
 import numpy as np
 
 from sclam_ros.core import se2
-from sclam_ros.frontend.laser_noise import NOT_A_NOISE, LaserNoiseJudgement
-from sclam_ros.frontend.reference_lines import (CLEAR_OF_LIMIT, MAX_PAIR_DISTANCE,
-                                                MIN_COS_INCIDENCE, SMALL_OBJECT_NOISE,
-                                                ReferenceScan)
+from sclam_ros.frontend.config import FrontendConfig, PairingConfig, RefinementConfig
+from sclam_ros.frontend.laser_noise import LaserNoiseJudgement
+from sclam_ros.frontend.reference_lines import ReferenceScan
 from sclam_ros.frontend.scan_matching import range_limit
-
-HUBER = 0.02  # m; ~2σ of the range noise of a typical 2D lidar
-ITERATIONS = 15
-# The refinement corrects KISS-ICP's answer by a fraction of a millimetre indoors (a 0.8 %
-# scale bias on a few cm of motion). A correction beyond these is the refinement locking onto
-# lines that are not there (outdoors: "lines" through points of two tree trunks; measured
-# on the simulator's outdoor scene, p99 error 1.1 m refined against 0.13 m unrefined): the
-# match is not used (RefinedScanMatcher).
-MAX_CORRECTION = 0.05  # m
-MAX_CORRECTION_ANGLE = 0.02  # rad
 
 
 class RefinedScanMatcher:
     """A scan matcher (scan_matching.ScanMatcher) whose motions are refined point-to-line
     against the scan they start from.
 
-    A match the refinement cannot confirm is not used. KISS-ICP's answer alone is biased
-    where the refinement fails: on the simulator's outdoor scene (trees, poles, cars; 120 s,
-    seeds 1 and 2, matches 0.3 s apart) the matches it had to keep unrefined came out
-    10-14 % long, with median errors of 26-30 mm on 8 cm of motion, while the noise model
-    gives them 1-2 mm; the refined ones were within 1 %. Kept, they pulled the wheel radii
-    up to +3.5 %. They are counted as the matcher's rejection
-    "match_unconfirmed", by reason in `unrefined` (reported by `sclam calibrate`); the
-    keyframe keeps its odometry edge.
+    A match the refinement cannot confirm is not used: KISS-ICP's answer alone is biased
+    where the refinement fails (outdoors, few straight surfaces), far beyond what the
+    noise model gives it. Measured: docs/decisions/point_to_line.md, "Unconfirmed matches
+    are not used". They are counted as the matcher's rejection "match_unconfirmed", by
+    reason in `unrefined` (reported by `sclam calibrate`); the keyframe keeps its odometry
+    edge.
     """
 
-    def __init__(self, matcher):
+    def __init__(self, matcher, config: FrontendConfig = FrontendConfig()):
         self.matcher = matcher
+        self.config = config
         # The laser's noise, judged on the first reference scans, then fixed: it decides how
         # ReferenceScan.from_points fits the lines.
-        self.laser_noise = LaserNoiseJudgement()
-        self._segment_noise = None  # the judged noise while the laser is noisy, for from_points(noise=)
-        self._clearance = 0.0  # m kept clear of the range limit (CLEAR_OF_LIMIT)
-        self._small_objects = False  # the judged noise is SMALL_OBJECT_NOISE or more
+        self.laser_noise = LaserNoiseJudgement(config)
+        self._segment_noise = None  # the judged noise while the laser is noisy (from_points)
+        self._clearance = 0.0  # m kept clear of the range limit
+        self._small_objects = False  # the judged noise is small_object_noise or more
         self._reference = None  # ReferenceScan of the last scan the matcher gave a pose
         self._reference_index = None  # its index in the matcher's numbering
         # Matches not used, by reason: "no_lines" (the reference scan has too few points on
         # lines: no walls in view, collapsed beams), "too_few_pairs" (fewer than 20 points of
         # the new scan near a line of the reference), "correction_too_large" (see
-        # MAX_CORRECTION: the two registrations disagree, one of them is wrong).
+        # RefinementConfig.max_correction: the two registrations disagree, one is wrong).
         self.unrefined: Counter = Counter()
         self.matches = 0  # matches KISS-ICP gave, used or not
 
     @property
     def fits_segments(self) -> bool:
-        """The laser is noisy (NOISY_RANGE): its lines are fitted to whole wall segments."""
+        """The laser is noisy (laser_noise.py): its lines are fitted to whole wall segments."""
         return self.laser_noise.noisy
 
     @property
@@ -78,7 +68,7 @@ class RefinedScanMatcher:
 
     @property
     def growth(self) -> float:
-        """How the laser's range noise grows with range (1/m; GROWTH), 0 where it does not."""
+        """How the laser's range noise grows with range (1/m), 0 where it does not."""
         return self.laser_noise.growth
 
     @property
@@ -94,8 +84,7 @@ class RefinedScanMatcher:
     @property
     def sigma_may_be_small(self) -> bool:
         """A noisy laser with most matches unconfirmed: on the simulator's outdoor scene
-        the errors were then up to 1.6 σ RMS for the wheels and 2.4 σ for the laser yaw
-        (bench/sensor_matrix.py --factors outdoor; docs/accuracy.md)."""
+        the errors are then larger than their σ says (docs/accuracy.md)."""
         return self.fits_segments and self.mostly_unconfirmed
 
     def add_scan(self, scan, guess, points):
@@ -113,7 +102,8 @@ class RefinedScanMatcher:
             self.matches += 1
             # A match starts from the last posed scan, which is the reference.
             reference = self._reference if match.index_from == self._reference_index else None
-            z, covariance, reason = _confirmed(reference, points, np.asarray(match.z, float))
+            z, covariance, reason = _confirmed(reference, points, np.asarray(match.z, float),
+                                               self.config)
             if reason:
                 self.unrefined[reason] += 1
                 self.matcher.rejections.add("match_unconfirmed")
@@ -125,35 +115,43 @@ class RefinedScanMatcher:
         return match, z, information
 
     def _remember_reference(self, scan, points):
-        """The scan just posed is the next match's reference; the first NOISE_SCANS judge
-        the laser's noise, and with it how the reference's lines are fitted and how far
-        from the range limit they must be (CLEAR_OF_LIMIT)."""
+        """The scan just posed is the next match's reference; the first few judge the
+        laser's noise, and with it how the reference's lines are fitted and how far from
+        the range limit they must be (reference_lines.py)."""
         if self.laser_noise.add(scan):  # the judgement changes only here, so it is used only here
-            median = self.laser_noise.median
+            median, lines = self.laser_noise.median, self.config.reference_lines
             self._segment_noise = median if self.laser_noise.noisy else None
-            # Beyond NOT_A_NOISE the estimate says nothing about the laser: no clearance.
-            self._clearance = CLEAR_OF_LIMIT * median if median <= NOT_A_NOISE else 0.0
-            self._small_objects = median >= SMALL_OBJECT_NOISE
+            # Beyond not_a_noise the estimate says nothing about the laser: no clearance.
+            says_something = median <= self.config.laser_noise.not_a_noise
+            self._clearance = lines.clear_of_limit * median if says_something else 0.0
+            self._small_objects = median >= lines.small_object_noise
         usable = range_limit(scan, self.matcher.config.max_range) - self._clearance
         self._reference = ReferenceScan.from_points(points, self._segment_noise, usable,
                                                     self._small_objects,
                                                     abs(float(scan.angle_increment)),
-                                                    growth=self.laser_noise.growth)
+                                                    growth=self.laser_noise.growth,
+                                                    config=self.config)
 
 
-def _confirmed(reference, points, z_icp):
+def _confirmed(reference, points, z_icp, config: FrontendConfig):
     """(refined z, its covariance, None), or (None, None, reason) where the refinement
     cannot confirm z_icp."""
-    return verdict(reference, *refine_with_covariance(reference, points, z_icp), z_icp)
+    refined = refine_with_covariance(reference, points, z_icp, config)
+    return verdict(reference, *refined, z_icp, config.refinement)
 
 
-def verdict(reference, refined, used, covariance, against):
+def verdict(reference, refined, used, covariance, against,
+            config: RefinementConfig = RefinementConfig()):
     """_confirmed's answer for a refinement (refine_with_covariance's result) of a match
-    whose own answer was `against`."""
+    whose own answer was `against`. A refinement that moves it by more than
+    config.max_correction (or config.max_correction_angle) is locking onto lines that are
+    not there (outdoors: "lines" through the points of two tree trunks), and the match is
+    not used. Measured: docs/decisions/point_to_line.md, "Corrections too large to be
+    true"."""
     if not used:
         return None, None, "no_lines" if reference is None else "too_few_pairs"
-    if (math.hypot(*(refined[:2] - against[:2])) > MAX_CORRECTION
-            or abs(se2.wrap_angle(refined[2] - against[2])) > MAX_CORRECTION_ANGLE):
+    if (math.hypot(*(refined[:2] - against[:2])) > config.max_correction
+            or abs(se2.wrap_angle(refined[2] - against[2])) > config.max_correction_angle):
         return None, None, "correction_too_large"
     return refined, covariance, None
 
@@ -166,14 +164,16 @@ def _with_covariance(information, covariance):
         return information
 
 
-def pairs(reference: ReferenceScan, moved, origin):
+def pairs(reference: ReferenceScan, moved, origin, config: PairingConfig = PairingConfig()):
     """(paired (n,) bool, index in `reference` of each one's point) of the new scan's points
     `moved` (n, 2), already moved by the motion being refined (the new scan's origin
     `origin` in the reference's frame): each is paired with its nearest reference point
-    when it lies within MAX_PAIR_DISTANCE of it (in its ellipse, ALONG_LINE) and that point
-    is within the usable range of both scans' origins."""
+    when it lies within config.max_pair_distance of it (in its ellipse along the line where
+    the reference has a reach) and that point is within the usable range of both scans'
+    origins."""
     reach = reference.reach
-    bound = MAX_PAIR_DISTANCE if reach is None else float(reach.max())
+    max_distance = config.max_pair_distance
+    bound = max_distance if reach is None else float(reach.max())
     dist, idx = reference.tree.query(moved, distance_upper_bound=bound)
     ok = np.isfinite(dist)
     anchors = reference.anchors
@@ -183,7 +183,7 @@ def pairs(reference: ReferenceScan, moved, origin):
         normal = reference.normals[found]
         across = normal[:, 0] * offset[:, 0] + normal[:, 1] * offset[:, 1]
         along = normal[:, 1] * offset[:, 0] - normal[:, 0] * offset[:, 1]
-        ok[ok] = (along / reach[found]) ** 2 + (across / MAX_PAIR_DISTANCE) ** 2 <= 1.0
+        ok[ok] = (along / reach[found]) ** 2 + (across / max_distance) ** 2 <= 1.0
     if np.isfinite(reference.usable_range):  # the anchor as the new scan sees it
         found = idx[ok]
         ok[ok] = np.hypot(anchors[found, 0] - origin[0],
@@ -191,42 +191,43 @@ def pairs(reference: ReferenceScan, moved, origin):
     return ok, idx
 
 
-def _range_weights(reference, i, nx, ny, rx, ry, z):
-    """GROWTH's weights 1/(1 + growth·r)² of new points paired with the reference's points
-    i (their lines' normals nx, ny; the points rotated into the reference, R(θ)q = (rx, ry);
-    the motion z): r where each point's beam meets its line, which does not depend on the
-    point's own range noise (its measured range does, and so does which reference point it
-    is paired with: weighed by either, the points the noise brought nearer would weigh
-    more), or the reference's own_ranges."""
+def _range_weights(reference, i, nx, ny, rx, ry, z, min_cos_incidence):
+    """The weights 1/(1 + growth·r)² of new points paired with the reference's points i
+    (their lines' normals nx, ny; the points rotated into the reference, R(θ)q = (rx, ry);
+    the motion z) where the range noise grows with range (laser_noise.py): r where each
+    point's beam meets its line (its cos of the incidence taken as min_cos_incidence at
+    least), which does not depend on the point's own range noise (its measured range does,
+    and so does which reference point it is paired with: weighed by either, the points the
+    noise brought nearer would weigh more), or the reference's own_ranges."""
     anchors = reference.anchors[i]
     distance = np.abs(nx * (anchors[:, 0] - z[0]) + ny * (anchors[:, 1] - z[1]))
     cos_incidence = np.abs(nx * rx + ny * ry) / np.maximum(np.hypot(rx, ry), 1e-12)
-    wall_range = distance / np.maximum(cos_incidence, MIN_COS_INCIDENCE)
+    wall_range = distance / np.maximum(cos_incidence, min_cos_incidence)
     own = reference.own_ranges[i]
     wall_range = np.where(np.isnan(own), wall_range, own)
     return 1.0 / (1.0 + reference.growth * wall_range) ** 2
 
 
-def refine(reference: ReferenceScan, points, z0):
+def refine(reference: ReferenceScan, points, z0, config: FrontendConfig = FrontendConfig()):
     """(z, number of pairs used) of refine_with_covariance."""
-    z, used, _ = refine_with_covariance(reference, points, z0)
+    z, used, _ = refine_with_covariance(reference, points, z0, config)
     return z, used
 
 
-def refine_with_covariance(reference: ReferenceScan, points, z0):
+def refine_with_covariance(reference: ReferenceScan, points, z0,
+                           config: FrontendConfig = FrontendConfig()):
     """z = laser_j ⊖ laser_i refined so points of scan j lie on the lines of scan i.
 
     Returns (z, number of pairs used, covariance of z), or (z0, 0, None) if too few pairs
     were found or there is no reference (ReferenceScan.from_points gives None for a scan
     without lines). The covariance is the least-squares one, s²·(JᵀWJ)⁻¹ with s the robust
     scale of the point-to-line residuals: large along a direction the lines of this pair of
-    scans do not fix (a corridor whose ends are out of range). Added to the noise model it
-    made the simulated outdoor scene's radii and base unbiased (mean error +0.23 / +0.18 /
-    +0.40 % → −0.03 / −0.04 / +0.05 %, 10 seeds) and the URG-04LX-like laser's RMS error
-    0.29 → 0.24 %; twice or four times it was worse outdoors (bench/sensor_matrix.py).
+    scans do not fix (a corridor whose ends are out of range); RefinedScanMatcher adds it
+    to the noise model's. Measured: docs/decisions/point_to_line.md, "The refinement's
+    covariance in the match's information".
     Runs once per scan: written on coordinate columns with scalar sin/cos (no per-call
-    stacking of (N, 2) arrays), which makes it about a third faster than with se2's
-    general helpers, with the same arithmetic.
+    stacking of (N, 2) arrays), faster than with se2's general helpers, with the same
+    arithmetic.
     """
     if reference is None:
         return np.array(z0, float), 0, None
@@ -237,12 +238,13 @@ def refine_with_covariance(reference: ReferenceScan, points, z0):
     z = np.array(z0, float)
     used = 0
     moved = np.empty((len(qx), 2))
-    for _ in range(ITERATIONS):
+    huber, pairing = config.refinement.huber, config.pairing
+    for _ in range(config.refinement.iterations):
         c, s = math.cos(z[2]), math.sin(z[2])
         rx, ry = c * qx - s * qy, s * qx + c * qy  # R(θ) q
         moved[:, 0] = rx + z[0]
         moved[:, 1] = ry + z[1]
-        ok, idx = pairs(reference, moved, z[:2])
+        ok, idx = pairs(reference, moved, z[:2], pairing)
         used = int(np.count_nonzero(ok))
         if used < 20:
             return np.array(z0, float), 0, None
@@ -252,9 +254,10 @@ def refine_with_covariance(reference: ReferenceScan, points, z0):
         residual = nx * (rx + z[0] - px[i]) + ny * (ry + z[1] - py[i])
         # ∂(R(θ) q + t)/∂θ = S R(θ) q: the rotated point turned by 90°.
         jac = np.stack((nx, ny, ny * rx - nx * ry))  # (3, n)
-        weight = np.minimum(1.0, HUBER / np.maximum(np.abs(residual), 1e-12))
+        weight = np.minimum(1.0, huber / np.maximum(np.abs(residual), 1e-12))
         if reference.growth:
-            range_weight = _range_weights(reference, i, nx, ny, rx, ry, z)
+            range_weight = _range_weights(reference, i, nx, ny, rx, ry, z,
+                                          pairing.min_cos_incidence)
             weight = weight * range_weight
         weighted = jac * weight
         hessian = weighted @ jac.T + 1e-9 * np.eye(3)
