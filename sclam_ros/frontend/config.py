@@ -17,7 +17,7 @@ class LaserNoiseConfig:
     """How the laser's range noise is judged from its first scans (laser_noise.py;
     decision: "Which lasers are noisy", "Range noise that grows with range")."""
 
-    # m: from this judged noise on, lines are whole wall segments (six beams' turn with the noise).
+    # m: from this judged noise on, lines are whole wall segments (six beams' lines turn with it).
     noisy_range: float = 0.02
     # m: above this the returns are not on surfaces (poles, foliage): it says nothing of the laser.
     not_a_noise: float = 0.1
@@ -27,7 +27,7 @@ class LaserNoiseConfig:
     growth_bins: int = 10
     # returns per bin at least: fewer tell no growth, and every return weighs alike.
     growth_samples: int = 100
-    # sine of a beam's angle to its neighbours' chord, at least: nearer grazing their noise rules.
+    # sine of a beam's angle to its neighbours' chord, at least: nearer grazing, their noise rules.
     growth_min_sine: float = 0.5
     # of σ(0): the growth over the ranges seen, at the slope's lower 95 % bound, that is used.
     growth_significant: float = 0.3
@@ -43,11 +43,11 @@ class ReferenceLinesConfig:
     normal_neighbours: int = 6
     # m RMS off such a line: beyond it the neighbourhood is a corner, not a wall.
     max_line_spread: float = 0.02
-    # m: narrower objects get no six-beam line from small_object_noise on (the noise picks them).
+    # m: narrower objects get no six-beam line from small_object_noise on: their noise picks it.
     small_object: float = 1.0
     # m of judged range noise from which small objects get no line (a quieter laser's hold).
     small_object_noise: float = 0.005
-    # × the judged noise: lines this near range_max are left out (the driver's cut puts them near).
+    # × the judged noise: lines this near range_max are left out (its cut makes walls look near).
     clear_of_limit: float = 3.0
 
 
@@ -73,7 +73,7 @@ class RefinementConfig:
 
     # m: the Huber weight's scale, ~2σ of the range noise of a typical 2D lidar.
     huber: float = 0.02
-    # Gauss-Newton steps at most: from KISS-ICP's answer a few converge.
+    # steps of Gauss-Newton at most, from KISS-ICP's answer (it stops at steps under 1 µm).
     iterations: int = 15
     # m: a refinement moving KISS-ICP's answer farther locks onto lines that are not there.
     max_correction: float = 0.05
@@ -107,7 +107,7 @@ class WallSegmentsConfig:
     ambiguous: float = 3.0
     # rad: lines this far apart in direction or more meet at a corner (less: a wall split in two).
     corner: float = math.radians(10.0)
-    # Gauss-Newton steps of a segment's fit on ranges at most.
+    # steps of Gauss-Newton at most in a segment's fit on ranges, from its least-squares line.
     range_fit_iterations: int = 5
 
 
