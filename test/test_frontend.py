@@ -10,6 +10,7 @@ import pytest
 
 from sclam_ros.io import bag
 from sclam_ros.io.messages import joint_state_to_raw, laser_scan_to_scan
+from sclam_ros.frontend.config import FrontendConfig, RefinementConfig
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.core.inputs import Scan
 from sclam_ros.core.params import SclamParams
@@ -32,9 +33,9 @@ def recording(tmp_path_factory):
     return params, events
 
 
-def run(params, events):
+def run(params, events, config=FrontendConfig()):
     """Keyframes, the frontend, and how many scans were registered on arrival."""
-    frontend = Frontend(params)
+    frontend = Frontend(params, config=config)
     keyframes, early = [], 0
     for kind, stamp, *rest in events:
         if kind == "encoder":
@@ -116,6 +117,19 @@ def test_a_scan_dropped_after_its_early_registration_leaves_no_dangling_edge(rec
     # The matcher goes on after the gap: laser edges resume.
     after = [kf for kf in keyframes if kf.stamp > t0 + 2.0]
     assert sum(kf.laser_motion is not None for kf in after) > 0.8 * len(after)
+
+
+def test_the_frontend_refines_with_its_config(recording):
+    """The config given to the Frontend is the one its refinement runs with: allowed no
+    correction of KISS-ICP's answer at all, it confirms no match, and no laser edge is made."""
+    params, events = recording
+    config = FrontendConfig(refinement=RefinementConfig(max_correction=0.0))
+    keyframes, frontend, _ = run(params, events, config)
+    refined = frontend.refined_matcher
+    assert refined.config is config
+    assert refined.matches > 0
+    assert refined.unrefined["correction_too_large"] == refined.matches
+    assert all(kf.laser_motion is None for kf in keyframes)
 
 
 def test_thinning_keeps_every_kth_beam_with_its_true_angle():

@@ -28,7 +28,7 @@ from sclam_ros.core.covariance import remaining_step
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.inputs import Scan
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams, atomic_write_text
-from sclam_ros.frontend import point_to_line
+from sclam_ros.frontend import point_to_line, reference_lines
 from sclam_ros.frontend.scan_matching import ScanMatcher
 from sclam_ros.io import bag
 from sclam_ros.io.messages import stamp_to_sec
@@ -169,7 +169,7 @@ def test_matches_without_lines_are_counted_not_used():
         match, z, _ = matcher.add_scan(scan, np.array([0.03, 0.0, 0.0]), points)
         matches += match is not None
         assert z is None
-    assert point_to_line.ReferenceScan.from_points(points) is None
+    assert reference_lines.ReferenceScan.from_points(points) is None
     assert matches > 1 and matcher.matches == matches
     assert matcher.unrefined["no_lines"] == matches
 

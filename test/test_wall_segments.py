@@ -3,6 +3,7 @@ import math
 import numpy as np
 
 from sclam_ros.frontend import wall_segments
+from sclam_ros.frontend.config import WallSegmentsConfig
 from sclam_ros.sim.world import World, _polyline
 
 
@@ -27,7 +28,7 @@ def test_a_line_fitted_on_ranges_does_not_lean_toward_the_beams():
         normal, centre, _, _ = wall_segments._total_least_squares(p)
         normal = normal if normal[0] > 0 else -normal
         through_points.append(math.atan2(normal[1], normal[0]))
-        fitted, _ = wall_segments._fit_on_ranges(p, normal, centre)
+        fitted, _ = wall_segments._fit_on_ranges(p, normal, centre, 0.0, WallSegmentsConfig())
         on_ranges.append(math.atan2(fitted[1], fitted[0]))
     through_points, on_ranges = np.degrees(through_points), np.degrees(on_ranges)
     standard_error = on_ranges.std() / math.sqrt(len(on_ranges))
@@ -49,7 +50,8 @@ def test_a_line_fitted_on_ranges_weighs_its_far_returns_less_where_their_noise_g
         p = np.column_stack([ranges * np.cos(bearings), ranges * np.sin(bearings)])
         normal, centre, _, _ = wall_segments._total_least_squares(p)
         for growth, found in errors.items():
-            fitted, distance = wall_segments._fit_on_ranges(p, normal, centre, growth)
+            fitted, distance = wall_segments._fit_on_ranges(p, normal, centre, growth,
+                                                            WallSegmentsConfig())
             found.append((math.degrees(math.atan2(fitted[1], fitted[0])) - 90.0,
                           distance - true_distance))
     alike, weighted = np.array(errors[0.0]), np.array(errors[0.5])

@@ -236,14 +236,13 @@ def _warn_about_input(rejections, frontend) -> None:
                  frontend.matcher.odometry_guess_overruled)
     from statistics import median
 
-    from sclam_ros.frontend import point_to_line
-
     refined = frontend.refined_matcher if frontend is not None else None
     if refined is not None and refined.fits_segments:
         log.info("noisy laser (range noise %.0f mm measured on its first scans, from %.0f mm "
                  "on): wall lines fitted to whole straight segments instead of %d beams",
-                 1e3 * median(refined.range_noises), 1e3 * point_to_line.NOISY_RANGE,
-                 point_to_line.NORMAL_NEIGHBOURS)
+                 1e3 * median(refined.range_noises),
+                 1e3 * refined.config.laser_noise.noisy_range,
+                 refined.config.reference_lines.normal_neighbours)
     if refined is not None and refined.growth:
         log.info("the laser's range noise grows with range (by %.0f %% of its value at 0 m per "
                  "metre, measured on its first scans): returns weighed by 1/σ(range)²",

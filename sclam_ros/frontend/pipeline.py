@@ -26,10 +26,11 @@ from typing import Optional
 import numpy as np
 
 from sclam_ros.core import kinematics
-from sclam_ros.frontend import point_to_line
-from sclam_ros.frontend.decimation import MATCH_PERIOD, ScanDecimator
 from sclam_ros.core.inputs import Rejections, Scan
 from sclam_ros.core.keyframe import Keyframe
+from sclam_ros.frontend.config import FrontendConfig
+from sclam_ros.frontend.decimation import MATCH_PERIOD, ScanDecimator
+from sclam_ros.frontend.point_to_line import RefinedScanMatcher
 from sclam_ros.frontend.scan_matching import (
     ScanMatcher,
     ScanMatcherConfig,
@@ -61,8 +62,9 @@ class Frontend:
     """Feeds encoder samples and scans (in arrival order); returns finished keyframes."""
 
     def __init__(self, params, rejections: Optional[Rejections] = None, matcher=None,
-                 match_period: float = MATCH_PERIOD, keep_scan_points: bool = False):
-        self.params = params
+                 match_period: float = MATCH_PERIOD, keep_scan_points: bool = False,
+                 config: FrontendConfig = FrontendConfig()):
+        self.params = params  # the user's (SclamParams); config is the developer's tuning
         # Keyframes carry their scan's points (Keyframe.scan_points): for the diagnosis's
         # map of walls, not for the calibration (an hour of 360-beam scans matched every
         # 0.3 s is ~35 MB of them).
@@ -73,7 +75,7 @@ class Frontend:
         self.matcher = matcher or ScanMatcher(
             ScanMatcherConfig.from_params(params), rejections=self.rejections
         )
-        self.refined_matcher = point_to_line.RefinedScanMatcher(self.matcher)
+        self.refined_matcher = RefinedScanMatcher(self.matcher, config)
         # The calibration used for the matcher's initial guess; the online estimator
         # updates it as it learns.
         self.calibration = np.array(

@@ -7,8 +7,7 @@ bends at corners and openings, where its neighbourhood takes in the other wall, 
 turned by the noise itself: a return's noise lies along its beam, so its shifts across
 and along the wall are correlated, and a least-squares line through the points leans
 toward the beams. Both move the lines the motion is measured from, by amounts that do not
-average out over a recording (on the simulator's bare corridors a URG-04LX-like laser's
-matches in the lobbies came out 0.11 % long, its wheel radii and base 0.19–0.21 % large).
+average out over a recording.
 
 Here each piece of the scan between breakpoints is split where it stops being straight
 (near the return farthest from the chord between its ends, where two lines fit it best),
@@ -18,6 +17,9 @@ without the lean. A return's residual origin (anchor) is where its own beam meet
 line: a point of the wall as the noise-free beam would have hit it, so neither which
 reference return a new point is paired with nor whether it lies clear of the range limit
 depends on that return's noise.
+
+Tuning: WallSegmentsConfig (frontend/config.py). Why these lines: docs/decisions/
+point_to_line.md, "A noisy laser's lines: whole wall segments, fitted on ranges".
 """
 from __future__ import annotations
 
@@ -25,58 +27,26 @@ import math
 
 import numpy as np
 
-# Consecutive returns farther apart than a surface seen at this incidence (from its plane)
-# or steeper could put them, plus a margin for the range noise, are on different surfaces
-# (the adaptive breakpoint detector, Borges & Aldon 2004).
-BREAKPOINT_INCIDENCE = math.radians(10.0)
-# A noisy laser's breakpoint margin, in units of its range noise: two returns of one wall
-# differ by up to about 3·√2σ in range from the noise alone.
-BREAK_NOISE = 4.0
-# A segment is straight when its returns' RMS distance from its line is within
-# STRAIGHT_SPREAD and the farthest within SPLIT_DEVIATION times the range noise (the
-# largest of a few hundred Gaussian draws is about 3σ); otherwise it is split in two near
-# the return farthest from the chord between its ends, where two lines fit it best within
-# SPLIT_REACH (a fraction of its returns) of that return. Against the best two-line split
-# over the whole piece (`python bench/sensor_matrix.py --rows 2 3 4 10 11 --seeds 80
-# --duration 120`, paired seeds, mean change ± its standard error): radii and base among
-# bare corridors, URG-04LX-like −0.03 / −0.04 / −0.04 % (± 0.01), to −0.02 / −0.02 /
-# −0.03 %, its laser x / y RMS 1.44 / 1.92 → 1.19 / 1.45 mm; low-cost −0.02 % (± 0.02),
-# RMS 0.26 / 0.26 / 0.42 → 0.23 / 0.24 / 0.37 %; in the office, 5 cm RMS 0.18 / 0.17 / 0.24
-# → 0.16 / 0.15 / 0.23 %, the URG-04LX-like and low-cost rows within 0.02 %.
-STRAIGHT_SPREAD = 1.3
-SPLIT_DEVIATION = 4.0
-SPLIT_REACH = 0.1
-# Fewer returns or a shorter stretch of wall than this make no line: a few returns' fit is
-# turned by their noise (its error in direction is about σ·√(12/n)/L).
-MIN_SEGMENT_RETURNS = 10
-MIN_SEGMENT_LENGTH = 0.3  # m
-# A beam that meets its line more glancingly than this has no anchor: where it meets the
-# fitted line moves by metres with a small error of the line's direction.
-MIN_COS_INCIDENCE = 0.1
-# Returns near a corner within AMBIGUOUS times the noise of the other wall's line are not
-# used, where the two lines are CORNER or more apart in direction (wall_lines).
-AMBIGUOUS = 3.0
-CORNER = math.radians(10.0)
-RANGE_FIT_ITERATIONS = 5
-# These constants are first choices, not tuned one by one: they are measured together, as
-# the calibrations they give (bench/sensor_matrix.py, point_to_line's NORMAL_NEIGHBOURS).
+from sclam_ros.frontend.config import WallSegmentsConfig
 
 
-def scan_pieces(points, margin):
+def scan_pieces(points, margin, config: WallSegmentsConfig = WallSegmentsConfig()):
     """(pieces, closed): index arrays (beam order, each contiguous around the scan) of the
     pieces of the scan `points` (N, 2) between breakpoints, where consecutive returns are
-    BREAKPOINT_INCIDENCE or more apart in bearing (dropouts, a field of view's ends) or
-    farther apart than a surface at that incidence allows plus `margin` (m). A full turn's
-    last and first returns are consecutive too: a surface across the seam is one piece.
-    closed: no breakpoint at all (one surface around the laser), then one piece."""
+    config.breakpoint_incidence or more apart in bearing (dropouts, a field of view's ends)
+    or farther apart than a surface at that incidence allows plus `margin` (m): the
+    adaptive breakpoint detector (Borges & Aldon 2004). A full turn's last and first
+    returns are consecutive too: a surface across the seam is one piece. closed: no
+    breakpoint at all (one surface around the laser), then one piece."""
+    incidence = config.breakpoint_incidence
     n = len(points)
     bearing = np.arctan2(points[:, 1], points[:, 0])
     ranges = np.hypot(points[:, 0], points[:, 1])
     following = np.roll(np.arange(n), -1)  # the last return's successor is the first
     dphi = np.abs(np.angle(np.exp(1j * (bearing[following] - bearing))))
-    near = dphi < BREAKPOINT_INCIDENCE
+    near = dphi < incidence
     reach = (np.minimum(ranges, ranges[following]) * np.sin(dphi)
-             / np.sin(np.where(near, BREAKPOINT_INCIDENCE - dphi, 1.0)))
+             / np.sin(np.where(near, incidence - dphi, 1.0)))
     cut = ~near | (np.hypot(*(points[following] - points).T) > reach + margin)
     if not cut.any():
         return [np.arange(n)], True
@@ -86,7 +56,8 @@ def scan_pieces(points, margin):
     return [piece for piece in np.split(order, np.flatnonzero(cut[order][:-1]) + 1)], False
 
 
-def wall_lines(points, noise, usable_range=np.inf, growth=0.0):
+def wall_lines(points, noise, usable_range=np.inf, growth=0.0,
+               config: WallSegmentsConfig = WallSegmentsConfig()):
     """(normals (N, 2), anchors (N, 2), keep (N,) bool) of a noisy laser's returns `points`
     (N, 2, beam order) with range noise `noise` (m), growing with range as 1 + growth·r
     (growth in 1/m; the fits weigh each return by 1/σ²): each kept return's wall line (its
@@ -100,8 +71,8 @@ def wall_lines(points, noise, usable_range=np.inf, growth=0.0):
     keep = np.zeros(n, bool)
     segment_of = np.full(n, -1)  # index in `lines` of each return's segment
     lines = []  # (normal, distance, the segment's returns)
-    for segment in straight_segments(points, noise):
-        line = _line_on_ranges(points[segment], noise, growth)
+    for segment in straight_segments(points, noise, config):
+        line = _line_on_ranges(points[segment], noise, growth, config)
         if line is None:
             continue
         normal, distance = line
@@ -109,16 +80,16 @@ def wall_lines(points, noise, usable_range=np.inf, growth=0.0):
         lines.append((normal, distance, segment))
         beams = points[segment] / np.hypot(points[segment, 0], points[segment, 1])[:, None]
         cos_incidence = beams @ normal
-        met = cos_incidence >= MIN_COS_INCIDENCE
+        met = cos_incidence >= config.min_cos_incidence
         anchor = beams * (distance / np.where(met, cos_incidence, 1.0))[:, None]
         normals[segment] = normal
         anchors[segment] = np.where(met[:, None], anchor, points[segment])
         keep[segment] = met & (np.hypot(anchor[:, 0], anchor[:, 1]) <= usable_range)
     # Near a corner a return within the noise of the other wall's line may be either wall's
     # (the split is a least-squares guess): from each end of a segment that meets another
-    # at a corner (their lines CORNER or more apart in direction; a wall split in two by an
-    # outlier is not one), the returns within AMBIGUOUS times the noise of the other's line
-    # are not kept, up to the first that is clear of it.
+    # at a corner (their lines config.corner or more apart in direction; a wall split in two
+    # by an outlier is not one), the returns within config.ambiguous times the noise of the
+    # other's line are not kept, up to the first that is clear of it.
     for index, (normal, _, segment) in enumerate(lines):
         ends = (((segment[0] - 1) % n, segment), ((segment[-1] + 1) % n, segment[::-1]))
         for outside, inward in ends:  # the return just outside an end, the segment from it
@@ -126,26 +97,29 @@ def wall_lines(points, noise, usable_range=np.inf, growth=0.0):
             if other < 0 or other == index:
                 continue
             other_normal, other_distance, _ = lines[other]
-            if abs(other_normal @ normal) > math.cos(CORNER):
+            if abs(other_normal @ normal) > math.cos(config.corner):
                 continue
-            close = np.abs(points[inward] @ other_normal - other_distance) < AMBIGUOUS * noise
+            close = (np.abs(points[inward] @ other_normal - other_distance)
+                     < config.ambiguous * noise)
             keep[inward[:len(close) if close.all() else int(np.argmin(close))]] = False
     return normals, anchors, keep
 
 
-def straight_segments(points, noise):
+def straight_segments(points, noise, config: WallSegmentsConfig = WallSegmentsConfig()):
     """Index arrays (beam order) of the scan's straight segments of at least
-    MIN_SEGMENT_RETURNS returns (see STRAIGHT_SPREAD)."""
+    config.min_segment_returns returns: each piece between breakpoints (with a margin of
+    config.break_noise times the range noise `noise`) that is not straight (_straight) is
+    split in two (_split_point) until it is."""
     segments = []
-    pending, closed = scan_pieces(points, BREAK_NOISE * noise)
+    pending, closed = scan_pieces(points, config.break_noise * noise, config)
     while pending:
         piece = pending.pop()
-        if len(piece) < MIN_SEGMENT_RETURNS:
+        if len(piece) < config.min_segment_returns:
             continue
-        if _straight(points[piece], noise):
+        if _straight(points[piece], noise, config):
             segments.append(piece)
             continue
-        at = _split_point(points[piece])
+        at = _split_point(points[piece], config.split_reach)
         pending += [piece[:at], piece[at:]]
     if closed and len(segments) > 1:
         # One surface around the laser was cut at the scan's seam, which is no corner: the
@@ -155,25 +129,27 @@ def straight_segments(points, noise):
         first = next((i for i, seg in enumerate(segments) if seg[0] == 0), None)
         if None not in (first, last) and first != last:
             joined = np.concatenate([segments[last], segments[first]])
-            if _straight(points[joined], noise):
+            if _straight(points[joined], noise, config):
                 segments = [seg for i, seg in enumerate(segments)
                             if i not in (first, last)] + [joined]
     return segments
 
 
-def _straight(p, noise):
-    """Whether the returns p (n, 2) lie on one line within the range noise (STRAIGHT_SPREAD)."""
+def _straight(p, noise, config: WallSegmentsConfig):
+    """Whether the returns p (n, 2) lie on one line within the range noise: their RMS
+    distance from it within config.straight_spread times the noise and the farthest's within
+    config.split_deviation times."""
     normal, centre, across, _ = _total_least_squares(p)
-    return (across <= STRAIGHT_SPREAD * noise
-            and np.abs((p - centre) @ normal).max() <= SPLIT_DEVIATION * noise)
+    return (across <= config.straight_spread * noise
+            and np.abs((p - centre) @ normal).max() <= config.split_deviation * noise)
 
 
-def _split_point(p):
+def _split_point(p, split_reach):
     """k where p (a piece that is not straight, n ≥ 10 returns) is split into p[:k] and
     p[k:]: near the return farthest from the chord between its ends (each end the mean of
     three returns, so that one return's noise does not turn the chord; on a piece whose
-    ends meet, farthest from them), which finds a corner among several, then
-    where, within SPLIT_REACH of it, the two sides' lines leave the smallest sum of squared
+    ends meet, farthest from them), which finds a corner among several, then where, within
+    split_reach × n returns of it, the two sides' lines leave the smallest sum of squared
     distances: at a corner, the corner to within the noise (the farthest return alone
     lands a few returns off often enough to give one wall's line to the other's returns)."""
     n = len(p)
@@ -184,10 +160,10 @@ def _split_point(p):
         farthest = int(np.argmax(np.abs((p - first) @ (np.array([-chord[1], chord[0]]) / length))))
     else:
         farthest = int(np.argmax(np.hypot(*(p - 0.5 * (p[0] + p[-1])).T)))
-    # The lines are fitted within SPLIT_REACH of that return on either side alike, so that
+    # The lines are fitted within split_reach of that return on either side alike, so that
     # the scan read backwards (the same scene mirrored) is split alike and another corner
     # farther along does not take part.
-    reach = max(3, int(SPLIT_REACH * n))
+    reach = max(3, int(split_reach * n))
     low = max(0, min(farthest - reach + 1, n - 2 * reach))  # 2·reach returns near an end
     high = min(n, max(farthest + reach + 1, 2 * reach))
     q = p[low:high] - p[low:high].mean(axis=0)  # centred for the sums' precision
@@ -217,42 +193,43 @@ def _total_least_squares(p):
             math.sqrt(max(spreads[1], 0.0)))
 
 
-def _line_on_ranges(p, noise, growth=0.0):
+def _line_on_ranges(p, noise, growth, config: WallSegmentsConfig):
     """(normal, distance from the laser) of the wall line n·x = distance through a straight
     segment's returns p (n, 2), fitted on their ranges, or None where the segment is
-    shorter than MIN_SEGMENT_LENGTH or the fit fails. Returns more than 3σ off the
+    shorter than config.min_segment_length or the fit fails. Returns more than 3σ off the
     total-least-squares line are left out (a neighbouring surface's last return)."""
     normal, centre, _, along = _total_least_squares(p)
     inliers = np.abs((p - centre) @ normal) <= 3.0 * noise
-    if inliers.sum() >= MIN_SEGMENT_RETURNS and not inliers.all():
+    if inliers.sum() >= config.min_segment_returns and not inliers.all():
         p = p[inliers]
         normal, centre, _, along = _total_least_squares(p)
-    if along * math.sqrt(12.0) < MIN_SEGMENT_LENGTH:  # a uniform stretch of length L: L/√12
+    if along * math.sqrt(12.0) < config.min_segment_length:  # a uniform stretch of L: L/√12
         return None
-    return _fit_on_ranges(p, normal, centre, growth)
+    return _fit_on_ranges(p, normal, centre, growth, config)
 
 
-def _fit_on_ranges(p, normal, centre, growth=0.0):
+def _fit_on_ranges(p, normal, centre, growth, config: WallSegmentsConfig):
     """(normal, distance) minimising Σ w_i (r_i − distance / cos(φ_i − θ))² over the returns'
     ranges r_i and bearings φ_i, θ the normal's angle, w_i = 1/(1 + growth·ρ_i)² (1/σ² of
     a range noise that grows with range, wall_lines; ρ_i = distance / cos(φ_i − θ), where
     the beam meets the line): Gauss-Newton from the
-    total-least-squares line (normal, centre). Beams that meet that line more glancingly
-    than MIN_COS_INCIDENCE are left out of the fit (a small turn of the line moves their
-    predicted range by metres); None if fewer than MIN_SEGMENT_RETURNS are left."""
+    total-least-squares line (normal, centre), at most config.range_fit_iterations steps.
+    Beams that meet that line more glancingly than config.min_cos_incidence are left out of
+    the fit (a small turn of the line moves their predicted range by metres); None if fewer
+    than config.min_segment_returns are left."""
     if centre @ normal < 0.0:
         normal = -normal  # pointing away from the laser: distance > 0
     bearing = np.arctan2(p[:, 1], p[:, 0])
     ranges = np.hypot(p[:, 0], p[:, 1])
     theta, distance = math.atan2(normal[1], normal[0]), float(centre @ normal)
-    fitted = np.cos(bearing - theta) >= MIN_COS_INCIDENCE
-    if fitted.sum() < MIN_SEGMENT_RETURNS:
+    fitted = np.cos(bearing - theta) >= config.min_cos_incidence
+    if fitted.sum() < config.min_segment_returns:
         return None
     bearing, ranges = bearing[fitted], ranges[fitted]
-    for _ in range(RANGE_FIT_ITERATIONS):
+    for _ in range(config.range_fit_iterations):
         incidence = bearing - theta
         cos = np.cos(incidence)
-        if np.any(cos < 0.5 * MIN_COS_INCIDENCE):
+        if np.any(cos < 0.5 * config.min_cos_incidence):
             return None  # the fit turned the line onto a beam: not a wall these returns fix
         # Each return's weight from the range its beam meets the line at, not its measured
         # range: weighed by the latter, the returns its noise brought nearer would weigh

@@ -1,0 +1,122 @@
+"""The front end's developer tuning: one tree of small frozen dataclasses (KISS-ICP's KISSConfig).
+
+What a user sets for their robot is in core/params.py (SclamParams); these values are the
+front end's own. Frontend and RefinedScanMatcher take a FrontendConfig and hand each part
+the section it needs; a bench or test varies one by passing another, e.g.
+``FrontendConfig(refinement=RefinementConfig(huber=0.2))``. Where a value was chosen by
+measuring, docs/decisions/point_to_line.md keeps the measurement under the decision named.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class LaserNoiseConfig:
+    """How the laser's range noise is judged from its first scans (laser_noise.py;
+    decision: "Which lasers are noisy", "Range noise that grows with range")."""
+
+    # m: from this judged noise on, lines are whole wall segments (six beams' lines turn with it).
+    noisy_range: float = 0.02
+    # m: above this the returns are not on surfaces (poles, foliage): it says nothing of the laser.
+    not_a_noise: float = 0.1
+    # scans: the noise is judged on the first this many reference scans, then fixed.
+    noise_scans: int = 30
+    # bins: the returns on walls are split into this many by range to measure σ(r).
+    growth_bins: int = 10
+    # returns per bin at least: fewer tell no growth, and every return weighs alike.
+    growth_samples: int = 100
+    # sine of a beam's angle to its neighbours' chord, at least: nearer grazing, their noise rules.
+    growth_min_sine: float = 0.5
+    # of σ(0): the growth over the ranges seen, at the slope's lower 95 % bound, that is used.
+    growth_significant: float = 0.3
+
+
+@dataclass(frozen=True)
+class ReferenceLinesConfig:
+    """Which of the reference scan's returns get a line, and how (reference_lines.py;
+    decisions: "A noisy laser's lines", "Returns on small objects", "The driver's cut at
+    the range limit")."""
+
+    # returns: a quiet laser's line at each return is fitted over this many nearest ones.
+    normal_neighbours: int = 6
+    # m RMS off such a line: beyond it the neighbourhood is a corner, not a wall.
+    max_line_spread: float = 0.02
+    # m: narrower objects get no six-beam line from small_object_noise on: their noise picks it.
+    small_object: float = 1.0
+    # m of judged range noise from which small objects get no line (a quieter laser's hold).
+    small_object_noise: float = 0.005
+    # × the judged noise: lines this near range_max are left out (its cut makes walls look near).
+    clear_of_limit: float = 3.0
+
+
+@dataclass(frozen=True)
+class PairingConfig:
+    """Which reference point a new point is paired with (reference_lines.py, point_to_line.py;
+    decision: "Pairing along the line")."""
+
+    # m across a reference point's line (around an anchor): KISS-ICP's answer is a few cm off.
+    max_pair_distance: float = 0.15
+    # × the beams' spacing on the surface: how far along its line a point may pair with a return.
+    along_reach: float = 0.6
+    # m: the most that reach along a line may be.
+    along_cap: float = 1.0
+    # cos of the incidence taken at least, for spacings on a surface and a wall's range at grazing.
+    min_cos_incidence: float = 0.2
+
+
+@dataclass(frozen=True)
+class RefinementConfig:
+    """The point-to-line Gauss-Newton refinement and when its answer is used (point_to_line.py;
+    decision: "Corrections too large to be true")."""
+
+    # m: the Huber weight's scale, ~2σ of the range noise of a typical 2D lidar.
+    huber: float = 0.02
+    # steps of Gauss-Newton at most, from KISS-ICP's answer (it stops at steps under 1 µm).
+    iterations: int = 15
+    # m: a refinement moving KISS-ICP's answer farther locks onto lines that are not there.
+    max_correction: float = 0.05
+    # rad: the same for the heading.
+    max_correction_angle: float = 0.02
+
+
+@dataclass(frozen=True)
+class WallSegmentsConfig:
+    """A noisy laser's scan cut into straight segments and their lines fitted on ranges
+    (wall_segments.py; decision: "A noisy laser's lines"). First choices measured together,
+    as the calibrations they give, not tuned one by one."""
+
+    # rad: returns farther apart than a surface at this incidence allows are on two surfaces.
+    breakpoint_incidence: float = math.radians(10.0)
+    # × the range noise: the breakpoints' margin; one wall's returns differ by up to ~3·√2σ.
+    break_noise: float = 4.0
+    # × the range noise: a segment is straight when its returns' RMS off its line is within this...
+    straight_spread: float = 1.3
+    # × the range noise: ...and its farthest return's within this (of a few hundred draws ~3σ).
+    split_deviation: float = 4.0
+    # of a piece's returns: around its farthest return, where the two sides' lines are tried.
+    split_reach: float = 0.1
+    # returns: fewer make no line (a few returns' fit turns with their noise, ~σ·√(12/n)/L).
+    min_segment_returns: int = 10
+    # m: a shorter stretch of wall makes no line, for the same reason.
+    min_segment_length: float = 0.3
+    # cos of the incidence: a more glancing beam has no anchor (its meeting point moves by metres).
+    min_cos_incidence: float = 0.1
+    # × the range noise: returns this near a corner's other wall may be either wall's: not used.
+    ambiguous: float = 3.0
+    # rad: lines this far apart in direction or more meet at a corner (less: a wall split in two).
+    corner: float = math.radians(10.0)
+    # steps of Gauss-Newton at most in a segment's fit on ranges, from its least-squares line.
+    range_fit_iterations: int = 5
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    """The front end's tuning, by part."""
+
+    laser_noise: LaserNoiseConfig = field(default_factory=LaserNoiseConfig)
+    reference_lines: ReferenceLinesConfig = field(default_factory=ReferenceLinesConfig)
+    pairing: PairingConfig = field(default_factory=PairingConfig)
+    refinement: RefinementConfig = field(default_factory=RefinementConfig)
+    wall_segments: WallSegmentsConfig = field(default_factory=WallSegmentsConfig)
