@@ -270,7 +270,7 @@ def mines(data: Path, figures: Path):
 def _with_time_offset(stamps, ticks, truth, params, step=10):
     """The mocap calibration with the library's time_offset in the graph: (k, δ, σ_δ)."""
     inputs = mocap.graph_inputs(stamps, ticks, truth, params.ticks_per_revolution, step)
-    nominal_k = [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base]
+    nominal_k = params.calibration_vector()[:3]
     angles = np.asarray(ticks, float) * 2 * np.pi / params.ticks_per_revolution
     speeds = np.gradient(angles, stamps, axis=0)
     data = EffectData(inputs.stamps, np.column_stack(
@@ -338,7 +338,7 @@ def _optiodom_open_loop(loaded, fits, params):
           "shape: median | runs of the other shape: median | any other run: heading best – worst "
           "(worst k) | mean k of the 11 others |")
     print("|---|---|---|---|---|---|---|---|")
-    nominal = np.array([params.wheel_radius_left, params.wheel_radius_right, params.wheel_base])
+    nominal = np.array(params.calibration_vector()[:3])
     table = {}
     for b, run in loaded.items():
         others = [a for a in loaded if a != b]

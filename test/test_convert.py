@@ -59,7 +59,7 @@ def test_breezyslam_bag_scans_ticks_params_attribution(tmp_path):
     params = SclamParams.from_yaml(out / "params.yaml")
     assert params.ticks_per_revolution == 2000 and params.laser_x == pytest.approx(0.145)
     dphi = np.diff(positions, axis=0) * 2 * np.pi / params.ticks_per_revolution
-    k = [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base]
+    k = params.calibration_vector()[:3]
     length = float(np.sum(np.abs(kinematics.arc_length_and_rotation(dphi, k)[0])))
     assert length == pytest.approx(46.0, rel=0.1)
     text = (out / "ATTRIBUTION.md").read_text()
@@ -86,7 +86,7 @@ def test_breezyslam_scan_delay_stamps_scans_earlier_and_leaves_the_ticks(tmp_pat
 
 def _dead_reckoning(ticks, params):
     dphi = np.diff(ticks, axis=0) * 2 * np.pi / params.ticks_per_revolution
-    k = [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base]
+    k = params.calibration_vector()[:3]
     poses = [np.zeros(3)]
     for motion in kinematics.forward(dphi, k):
         poses.append(se2.compose(poses[-1], motion))

@@ -40,7 +40,7 @@ def _urdf(path, joints=JOINTS):
 
 
 def _laser_pose(params):
-    return tuple(getattr(params, k) for k in LASER_KEYS)
+    return params.calibration_vector()[3:]
 
 
 def test_urdf_gives_the_nominal_laser_pose(tmp_path):

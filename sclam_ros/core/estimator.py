@@ -149,7 +149,7 @@ def calibrate_keyframes(keyframes, params, rejections=None, progress=None,
             f"the graph has {len(inputs.odo_from)} odometry and {len(inputs.laser_from)} "
             f"laser edges; both are needed.{hint} Rejections: {rejections or 'none'}"
         )
-    nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+    nominal = np.array(params.calibration_vector())
     prior_sigma = graph_mod.prior_sigmas(nominal, config.graph)
     problem = graph_mod.build_problem(inputs, params, nominal, correct_dilution=correct_dilution,
                                       config=config.graph, linear=config.linear)

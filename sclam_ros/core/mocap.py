@@ -88,7 +88,7 @@ def calibrate_with_ground_truth(stamps, ticks, truth, params: SclamParams, step=
     there and only the mount (and the poses) are fitted: how another calibration is
     aligned with this run's motion capture (σ of the held k: 0)."""
     inputs = graph_inputs(stamps, ticks, truth, params.ticks_per_revolution, step, config.mocap)
-    nominal_k = [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base]
+    nominal_k = params.calibration_vector()[:3]
     held = fixed_k is not None
     problem = build_problem(inputs, params, fixed_k if held else nominal_k, fix_k=held,
                             config=config)

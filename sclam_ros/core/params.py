@@ -199,6 +199,11 @@ class SclamParams:
     def calibration(self) -> dict:
         return {k: float(getattr(self, k)) for k in CALIBRATION_KEYS}
 
+    def calibration_vector(self) -> tuple:
+        """The six calibration values in CALIBRATION_KEYS order (the state vector's; callers
+        that compute np.asarray it: this module stays free of numpy)."""
+        return tuple(float(getattr(self, k)) for k in CALIBRATION_KEYS)
+
     def with_calibration(self, values: dict) -> "SclamParams":
         return dataclasses.replace(self, **{k: float(values[k]) for k in CALIBRATION_KEYS})
 

@@ -22,7 +22,7 @@ from sclam_ros.core import graph as graph_mod
 from sclam_ros.diagnosis.disagreement import OdometryCovariance, edge_nll
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
-from sclam_ros.diagnosis.fitting import Fit, nominal_calibration, paired_edges
+from sclam_ros.diagnosis.fitting import Fit, paired_edges
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.variance_components import solve_with_variance_components
 
@@ -79,7 +79,7 @@ def predict_error(model: FittedModel, keyframes, params) -> np.ndarray:
     data = EffectData.from_keyframes(keyframes, inputs.stamps)
     effects = [LIBRARY[n](data) for n in model.effects]
     # The stated odometry noise at nominal k, exactly as diagnose scores its held-out blocks.
-    odo_cov = OdometryCovariance.of(inputs, params, nominal_calibration(params)[:3])
+    odo_cov = OdometryCovariance.of(inputs, params, np.array(params.calibration_vector()[:3]))
     fit = Fit(problem=None, values=model.values, scales=model.scales, cost=float("nan"))
     return edge_nll(fit, effects, inputs, paired_edges(inputs), odo_cov)
 

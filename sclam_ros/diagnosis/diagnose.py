@@ -34,8 +34,7 @@ from sclam_ros.diagnosis.cross_validation import Models, time_block_folds
 from sclam_ros.diagnosis.disagreement import OdometryCovariance
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.evidence import effect_value
-from sclam_ros.diagnosis.fitting import (Fit, component_residuals, fit_effects, nominal_calibration,
-                                         paired_edges)
+from sclam_ros.diagnosis.fitting import Fit, component_residuals, fit_effects, paired_edges
 from sclam_ros.diagnosis.regressors import regressors
 from sclam_ros.diagnosis.selection import stepwise_selection
 from sclam_ros.diagnosis.structure import name_structure, residual_tests, significant
@@ -83,7 +82,7 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
     inputs = base_result.inputs
     problem = base_result.problem
     base = Fit(problem, problem.values, dict(problem.scales), problem.cost(problem.values))
-    nominal = nominal_calibration(params)
+    nominal = np.array(params.calibration_vector())
     data = EffectData.from_keyframes(keyframes, inputs.stamps, positions=base.values["poses"][:, :2])
     data.walls = WallMap.from_keyframes(keyframes, inputs.stamps, base.values["poses"],
                                         base.values["laser"][0], config.walls)

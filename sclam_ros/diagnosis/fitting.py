@@ -10,7 +10,6 @@ import numpy as np
 
 from sclam_ros.core import graph as graph_mod
 from sclam_ros.core.levenberg_marquardt import levenberg_marquardt
-from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.core.variance_components import solve_with_variance_components
 from sclam_ros.diagnosis.effects.model import extend_problem
 
@@ -48,11 +47,6 @@ def paired_edges(inputs) -> Edges:
             las.append(m)
     odo, las = np.array(odo, int), np.array(las, int)
     return Edges(odo, las, inputs.odo_from[odo], inputs.odo_from[odo] + 1)
-
-
-def nominal_calibration(params) -> np.ndarray:
-    """The nominal calibration vector, in CALIBRATION_KEYS order."""
-    return np.array([getattr(params, k) for k in CALIBRATION_KEYS])
 
 
 def component_residuals(problem, values, edges: Edges):

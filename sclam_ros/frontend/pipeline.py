@@ -78,10 +78,7 @@ class Frontend:
         self.refined_matcher = RefinedScanMatcher(self.matcher, config)
         # The calibration used for the matcher's initial guess; the online estimator
         # updates it as it learns.
-        self.calibration = np.array(
-            [params.wheel_radius_left, params.wheel_radius_right, params.wheel_base,
-             params.laser_x, params.laser_y, params.laser_yaw]
-        )
+        self.calibration = np.array(params.calibration_vector())
         self._previous = None  # last SyncedScan
         self._count = 0
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one

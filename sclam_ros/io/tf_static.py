@@ -182,7 +182,7 @@ def with_nominal_laser_pose(path, params, urdf=None):
         laser = scan_frame_id(path, params.scan_topic) if params.scan_topic in info else None
         mount = laser_mount(path, params.base_frame, laser)
     explicit = [k for k in LASER_KEYS if k in params.explicit_keys]
-    from_file = _pose_text([getattr(params, k) for k in LASER_KEYS])
+    from_file = _pose_text(params.calibration_vector()[3:])
     if mount is None:
         if explicit:
             return params, f"nominal laser pose from the parameters file: {from_file}"
@@ -195,7 +195,7 @@ def with_nominal_laser_pose(path, params, urdf=None):
                         f"({mount.describe()} says {_pose_text(mount.pose)})")
     updated = dataclasses.replace(params, **{k: from_tree[k] for k in taken}).validate()
     updated.explicit_keys = params.explicit_keys
-    pose = _pose_text([getattr(updated, k) for k in LASER_KEYS])
+    pose = _pose_text(updated.calibration_vector()[3:])
     if explicit:
         return updated, (f"nominal laser pose: {', '.join(taken)} from {mount.describe()}, "
                          f"{', '.join(explicit)} from the parameters file: {pose}")

@@ -50,7 +50,7 @@ class OnlineCalibrator:
         self.inline_solve = inline_solve
         self.rejections = rejections if rejections is not None else Rejections()
         self.solve_every = solve_every
-        self.nominal = np.array([getattr(params, k) for k in CALIBRATION_KEYS])
+        self.nominal = np.array(params.calibration_vector())
         self.generation = 0  # counts window resets; solves and chunks from older ones are void
         self.frontend = Frontend(params, self.rejections, match_period=ONLINE_MATCH_PERIOD)
         self.merger = graph_mod.KeyframeMerger(params.keyframe_interval)
