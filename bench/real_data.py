@@ -112,12 +112,12 @@ def aces(data: Path, work: Path, scan_delay: float) -> None:
     results = {"whole": calibrate_keyframes(keyframes, params, recording.rejections),
                "1st half": calibrate_keyframes(keyframes[:half], params),
                "2nd half": calibrate_keyframes(keyframes[half:], params)}
-    refined = recording.frontend.refined_matcher
+    report = recording.frontend.report()
     print(f"\n## ACES, scans stamped {scan_delay * 1e3:.0f} ms before their log lines\n")
-    print(f"{len(keyframes)} scans matched; {refined.matches} matches, "
-          f"{refined.confirmed} confirmed (not used: {dict(refined.unrefined)}); "
-          f"laser judged {'noisy' if refined.fits_segments else 'quiet'} "
-          f"({1e3 * float(np.median(refined.range_noises)):.0f} mm)")
+    print(f"{len(keyframes)} scans matched; {report.matches} matches, "
+          f"{report.confirmed} confirmed (not used: {report.unconfirmed}); "
+          f"laser judged {'noisy' if report.noisy_laser else 'quiet'} "
+          f"({1e3 * report.range_noise:.0f} mm)")
     rows = [[label] + [f"{human(key, r.estimate[key]):.2f} ± {human(key, r.sigma[key]):.2f}"
                        + ("" if r.observable[key] else " (n/o)") for key in CALIBRATION_KEYS]
             + [str(r.converged)] for label, r in results.items()]

@@ -145,7 +145,8 @@ def _run_track(args, params, truth) -> int:
 
     rows, calibrator, keyframes = track(args.bag, params,
                                         ProgressBar("online calibration", not args.quiet))
-    _warn_about_input(calibrator.rejections, calibrator.frontend)
+    report = calibrator.frontend.report()
+    _warn_about_input(calibrator.rejections, report)
     # The batch solve's refusal, on the same keyframes: the window would absorb swapped or
     # backwards encoders into absurd values with small σ.
     check_wiring(keyframes, params)
@@ -161,12 +162,12 @@ def _run_track(args, params, truth) -> int:
                             nominal=dict(zip(CALIBRATION_KEYS, map(float, calibrator.nominal))),
                             observable=estimate.observable)
     print(format_table(shown, truth))
-    _explain_unobserved(shown.observable, calibrator.frontend)
+    _explain_unobserved(shown.observable, report)
     print(f"track: {args.track}")
     return 0
 
 
-def _explain_unobserved(observable, frontend=None) -> None:
+def _explain_unobserved(observable, report=None) -> None:
     """Why the flagged parameters kept their nominal value. The decision is the information
     rule's (core/observability.py): the data adds too little information on them. Few
     confirmed scan matches is said beside it where it holds, as a likely contributor, not
@@ -175,9 +176,8 @@ def _explain_unobserved(observable, frontend=None) -> None:
         return
     print("Parameters marked NOT OBSERVABLE kept their nominal value: the recording carries "
           "too little information on them.")
-    refined = frontend.refined_matcher if frontend is not None else None
-    if refined is not None and refined.mostly_unconfirmed:
-        print(f"Only {refined.confirmed} of {refined.matches} scan matches could be confirmed "
+    if report is not None and report.mostly_unconfirmed:
+        print(f"Only {report.confirmed} of {report.matches} scan matches could be confirmed "
               "(few straight surfaces in view for this laser's range noise), which leaves the "
               "odometry little to be compared with.")
     else:
@@ -205,8 +205,9 @@ def _register(args, params, progress):
 EXPECTED_REJECTIONS = {"match_map_warmup"}
 
 
-def _warn_about_input(rejections, frontend) -> None:
-    """Say what the data path dropped or could not refine, so nothing is lost silently."""
+def _warn_about_input(rejections, report) -> None:
+    """Say what the data path dropped or could not refine, so nothing is lost silently.
+    ``report``: the front end's FrontendReport (None where the keyframes were made in chunks)."""
     # The scans that build each new local map (the first few of a recording) are not matched
     # by design: an info, so that a clean recording ends without a warning.
     # match_unconfirmed gets its own warning below, with its reasons.
@@ -218,43 +219,41 @@ def _warn_about_input(rejections, frontend) -> None:
                     ", ".join(f"{r}: {n}" for r, n in sorted(unexpected.items())))
     if expected:
         log.info("not used by design: %s", ", ".join(f"{r}: {n}" for r, n in sorted(expected.items())))
-    if frontend is not None and frontend.skipped_scans:
+    if report is None:
+        return
+    if report.skipped_scans:
         log.info("%d scans not matched by design: 1 scan in %d is, about %g s apart%s "
-                 "(sclam_ros/frontend/decimation.py)", frontend.skipped_scans,
-                 frontend.decimator.every, frontend.decimator.match_period,
+                 "(sclam_ros/frontend/decimation.py)", report.skipped_scans,
+                 report.match_every, report.match_period,
                  ", and the scan after each encoder sample (the encoders are slower)"
-                 if frontend.decimator.follows_samples else "")
-    if frontend is not None and frontend.matcher.odometry_guess_failures:
+                 if report.matches_follow_samples else "")
+    if report.odometry_guess_failures:
         log.warning("%d scan(s) could only be registered from the previous scan's motion: "
                     "from the wheel odometry's prediction (nominal calibration) the registration "
                     "failed (nominal values far off, the encoders wired wrong, or little "
-                    "structure in view)", frontend.matcher.odometry_guess_failures)
-    if frontend is not None and frontend.matcher.odometry_guess_overruled:
+                    "structure in view)", report.odometry_guess_failures)
+    if report.odometry_guess_overruled:
         # Outdoors the overlap that decides is noisy; wiring errors are refused elsewhere.
         log.info("%d scan(s) registered from the previous scan's motion, which the previous "
                  "scan confirmed better than the wheel odometry's prediction",
-                 frontend.matcher.odometry_guess_overruled)
-    from statistics import median
-
-    refined = frontend.refined_matcher if frontend is not None else None
-    if refined is not None and refined.fits_segments:
+                 report.odometry_guess_overruled)
+    if report.noisy_laser:
         log.info("noisy laser (range noise %.0f mm measured on its first scans, from %.0f mm "
                  "on): wall lines fitted to whole straight segments instead of %d beams",
-                 1e3 * median(refined.range_noises),
-                 1e3 * refined.config.laser_noise.noisy_range,
-                 refined.config.reference_lines.normal_neighbours)
-    if refined is not None and refined.growth:
+                 1e3 * report.range_noise, 1e3 * report.noisy_from, report.line_beams)
+    if report.range_noise_growth:
         log.info("the laser's range noise grows with range (by %.0f %% of its value at 0 m per "
                  "metre, measured on its first scans): returns weighed by 1/σ(range)²",
-                 100.0 * refined.growth)
-    unrefined = refined.unrefined if refined is not None else {}
-    if unrefined:
+                 100.0 * report.range_noise_growth)
+    unconfirmed = report.unconfirmed
+    if unconfirmed:
         # KISS-ICP's motion alone is biased where the refinement fails (point_to_line.py).
         log.warning("%d of %d scan matches not used: the point-to-line refinement could not "
                     "confirm them (%s; few straight walls in view: an outdoor scene?)",
-                    sum(unrefined.values()), frontend.refined_matcher.matches,
-                    ", ".join(f"{UNREFINED_REASONS[r]}: {n}" for r, n in sorted(unrefined.items())))
-    if refined is not None and refined.sigma_may_be_small:
+                    sum(unconfirmed.values()), report.matches,
+                    ", ".join(f"{UNREFINED_REASONS[r]}: {n}"
+                              for r, n in sorted(unconfirmed.items())))
+    if report.sigma_may_be_small:
         log.warning("with a noisy laser and most scan matches unconfirmed the reported σ may "
                     "be too small: outdoors on the simulator the errors were up to 1.6 σ RMS for "
                     "the wheels and 2.4 σ for the laser yaw (docs/accuracy.md)")
@@ -320,7 +319,8 @@ def _run(args, warnings) -> int:
     if args.track:
         return _run_track(args, params, truth)
     recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
-    _warn_about_input(recording.rejections, recording.frontend)
+    report = recording.frontend.report() if recording.frontend is not None else None
+    _warn_about_input(recording.rejections, report)
     if not args.quiet:
         log.info("solving the graph: %d scans", len(recording.keyframes))
     config = CoreConfig()
@@ -336,7 +336,7 @@ def _run(args, warnings) -> int:
         log.warning("the solver stopped with the parameters still moving by more than %.2g σ "
                     "per step: the estimate is not final", config.estimator.converged_step_sigma)
     print(format_table(result, truth))
-    _explain_unobserved(result.observable, recording.frontend)
+    _explain_unobserved(result.observable, report)
     _explain_dilution(result.wheel_noise_correction)
     if args.json:
         out = result.as_json()

@@ -31,6 +31,7 @@ from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.frontend.config import FrontendConfig
 from sclam_ros.frontend.decimation import MATCH_PERIOD, ScanDecimator
 from sclam_ros.frontend.point_to_line import RefinedScanMatcher
+from sclam_ros.frontend.report import FrontendReport
 from sclam_ros.frontend.scan_matching import (
     ScanMatcher,
     ScanMatcherConfig,
@@ -94,10 +95,9 @@ class Frontend:
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list:
         return [self._keyframe(s) for s in self.sync.add_encoder(stamp, left_raw, right_raw)]
 
-    @property
-    def skipped_scans(self) -> int:
-        """Scans not matched by design (see frontend/decimation.py)."""
-        return self.decimator.skipped
+    def report(self) -> FrontendReport:
+        """What it did so far: matches made and confirmed, scans skipped, the laser's noise."""
+        return FrontendReport.of(self)
 
     def add_scan(self, scan: Scan) -> list:
         if not self.decimator.accept(scan.stamp, self.stream.latest_stamp, self.stream.period):

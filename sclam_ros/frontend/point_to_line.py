@@ -34,8 +34,8 @@ class RefinedScanMatcher:
     where the refinement fails (outdoors, few straight surfaces), far beyond what the
     noise model gives it. Measured: docs/decisions/point_to_line.md, "Unconfirmed matches
     are not used". They are counted as the matcher's rejection "match_unconfirmed", by
-    reason in `unrefined` (reported by `sclam calibrate`); the keyframe keeps its odometry
-    edge.
+    reason in `unrefined` (reported through frontend/report.py); the keyframe keeps its
+    odometry edge.
     """
 
     def __init__(self, matcher, config: FrontendConfig = FrontendConfig()):
@@ -70,22 +70,6 @@ class RefinedScanMatcher:
     def growth(self) -> float:
         """How the laser's range noise grows with range (1/m), 0 where it does not."""
         return self.laser_noise.growth
-
-    @property
-    def confirmed(self) -> int:
-        """Matches the refinement confirmed (used)."""
-        return self.matches - sum(self.unrefined.values())
-
-    @property
-    def mostly_unconfirmed(self) -> bool:
-        """More than half of the matches could not be confirmed (few straight surfaces)."""
-        return 2 * self.confirmed < self.matches
-
-    @property
-    def sigma_may_be_small(self) -> bool:
-        """A noisy laser with most matches unconfirmed: on the simulator's outdoor scene
-        the errors are then larger than their σ says (docs/accuracy.md)."""
-        return self.fits_segments and self.mostly_unconfirmed
 
     def add_scan(self, scan, guess, points):
         """(Match or None, z or None, information of z or None): the matcher's answer and

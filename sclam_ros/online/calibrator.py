@@ -139,7 +139,7 @@ class OnlineCalibrator:
         return self.pose_window_length() + self.history_length()
 
     def status(self) -> CalibratorStatus:
-        estimate, refined = self.estimate, self.frontend.refined_matcher
+        estimate = self.estimate
         return CalibratorStatus(
             estimate=estimate,
             calibration=self.nominal.copy() if estimate is None else estimate.vector(),
@@ -150,10 +150,8 @@ class OnlineCalibrator:
             window_length=self.window_length(), pose_window_length=self.pose_window_length(),
             window_distance=float(self.params.window_distance),
             radius_changes=self.radius_changes, change_statistic=self.change_statistic,
-            solves=self.solves, skipped_scans=self.frontend.skipped_scans,
-            unconverged_in_a_row=self.unconverged_in_a_row,
-            scan_matches=refined.matches, scan_matches_confirmed=refined.confirmed,
-            sigma_may_be_small=refined.sigma_may_be_small,
+            solves=self.solves, unconverged_in_a_row=self.unconverged_in_a_row,
+            frontend=self.frontend.report(),
         )
 
     def _trim(self) -> None:

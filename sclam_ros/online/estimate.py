@@ -7,6 +7,7 @@ from typing import Optional
 import numpy as np
 
 from sclam_ros.core.params import CALIBRATION_KEYS
+from sclam_ros.frontend.report import FrontendReport
 
 
 @dataclass
@@ -46,8 +47,5 @@ class CalibratorStatus:
     radius_changes: int
     change_statistic: float  # of the last solve (nan before the first test)
     solves: int
-    skipped_scans: int
     unconverged_in_a_row: int
-    scan_matches: int  # KISS-ICP's, used or not
-    scan_matches_confirmed: int  # by the point-to-line refinement (used)
-    sigma_may_be_small: bool  # point_to_line.RefinedScanMatcher.sigma_may_be_small
+    frontend: FrontendReport  # scans skipped, matches made and confirmed, the laser's noise

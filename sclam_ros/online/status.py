@@ -44,10 +44,10 @@ def diagnostic_status(status, params, received, rejections, config: OnlineConfig
         "solves": cal.solves,
         "joint_states_received": received["joint_states"],
         "scans_received": received["scan"],
-        "scans_skipped_above_max_rate": cal.skipped_scans,
+        "scans_skipped_above_max_rate": cal.frontend.skipped_scans,
         "solves_unconverged_in_a_row": cal.unconverged_in_a_row,
-        "scan_matches": cal.scan_matches,
-        "scan_matches_confirmed": cal.scan_matches_confirmed,
+        "scan_matches": cal.frontend.matches,
+        "scan_matches_confirmed": cal.frontend.confirmed,
         "rejected_total": rejections.total(),
     }
     weight = math.nan  # the change model's weight in the published radii σ
@@ -80,7 +80,7 @@ def diagnostic_status(status, params, received, rejections, config: OnlineConfig
             message = f"{cal.unconverged_in_a_row} solves in a row did not converge"
         else:
             level, message = OK, "calibrated"
-        if cal.sigma_may_be_small:
+        if cal.frontend.sigma_may_be_small:
             level = WARN
             message += ("; the σ may be too small: a noisy laser with most scan matches "
                         "unconfirmed (few straight surfaces in view; docs/accuracy.md)")
