@@ -8,11 +8,19 @@ Table 2: one --long-minute 10 Hz / 360-beam recording: `sclam calibrate` sequent
 factor, and the largest difference of a parameter from the sequential run in units of its σ.
 Wall times are medians of --repeat runs of the command a user types (fresh process each).
 
+--example: instead, the example fleet of docs/fleet.md: two robots, five 60 s recordings
+each, two real changes. robot_a's left tyre grows by 2 % before its day 3 (a new tyre);
+robot_b's laser is knocked by 1° in yaw before its day 4. Runs `sclam fleet` and
+`sclam fleet report` on them (in --out) as a user would and copies the report's figure to
+docs/figures/fleet_history.png. The report must flag exactly those two changes.
+
 Run: .venv/bin/python bench/fleet.py [--recordings 8 --duration 120 --long 10 --repeat 3]
      (--recordings 0 skips table 1)
+     .venv/bin/python bench/fleet.py --example [--out /tmp/example_fleet]
 """
 import argparse
 import json
+import math
 import shutil
 import statistics
 import subprocess
@@ -23,6 +31,8 @@ from common import scratch_dir, table
 
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.sim import simulate
+
+DOCS_FIGURE = Path(__file__).resolve().parents[1] / "docs" / "figures" / "fleet_history.png"
 
 
 def timed(command):
@@ -69,6 +79,23 @@ def long_table(work, minutes, repeat):
     return table(rows, ["run", "recording", "wall s", "real time", "max |Δ|/σ vs sequential"])
 
 
+def example_fleet(root: Path) -> None:
+    """docs/fleet.md's example fleet in `root`, its report, and the report's figure copied
+    to the docs."""
+    for day in range(1, 6):
+        truth = simulate(root / "fleet" / "robot_a" / f"day{day}", duration=60, seed=10 + day,
+                         overwrite=True, true_overrides={
+                             "wheel_radius_left": 0.1263 * (1.02 if day >= 3 else 1.0)})
+        knocked = math.radians(1.0) if day >= 4 else 0.0
+        simulate(root / "fleet" / "robot_b" / f"day{day}", duration=60, seed=20 + day,
+                 overwrite=True, true_overrides={"laser_yaw": truth["laser_yaw"] + knocked})
+    results = root / "results"
+    subprocess.run(["sclam", "fleet", str(root / "fleet"), "--out", str(results)], check=True)
+    subprocess.run(["sclam", "fleet", "report", str(results)], check=True)
+    shutil.copy(results / "history.png", DOCS_FIGURE)
+    print(f"figure copied to {DOCS_FIGURE}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -76,7 +103,13 @@ def main():
     ap.add_argument("--duration", type=float, default=120.0)
     ap.add_argument("--long", type=float, default=10.0, help="minutes of the long recording")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--example", action="store_true",
+                    help="the example fleet of docs/fleet.md instead of the timings")
+    ap.add_argument("--out", default="/tmp/example_fleet", help="--example: where it is written")
     args = ap.parse_args()
+    if args.example:
+        example_fleet(Path(args.out))
+        return
     work = scratch_dir("sclam_fleet_bench_")
     try:
         if args.recordings:

@@ -1,7 +1,10 @@
-"""Real data in one run: the Freiburg ACES log against its ground-truth relations, the
-agreement of its two halves, and the Mines rover's run-to-run and half-versus-half agreement.
+"""The real data sets in one script, as sections (--only aces,mines,censi,optiodom; default
+all), each printing the tables docs/real_data.md quotes. DATA_DIR (default ../shared/data
+beside the repository) holds one folder per data set, read in place; an absent one is
+skipped with a message.
 
-ACES (../shared/data/freiburg-aces, CC-BY-3.0, Kümmerle et al. 2009) is converted with
+aces: the Freiburg ACES log against its ground-truth relations, and the agreement of its
+two halves. ACES (freiburg-aces, CC-BY-3.0, Kümmerle et al. 2009) is converted with
 `sclam convert carmen` (wheel rotations implied from the logged odometry with a nominal
 radius of 0.1 m and wheel base of 0.4 m, laser at the origin as the log's PARAM says) and
 calibrated as `sclam calibrate` does. Error = the relation metric of the benchmark: for
@@ -12,12 +15,34 @@ dead-reckoned) with the nominal and the calibrated radii and wheel base; and the
 optimised poses (wheels + laser), dead-reckoned between its keyframes. Each scan is
 stamped as logged and 0.1 s earlier (the relations' times, which are the scans', with it).
 
-Run: .venv/bin/python bench/real_data.py [DATA_DIR] [--skip-mines]
+mines: run-to-run and half-versus-half agreement on the real Mines rover (URG-04LX), in σ.
+The two breezyslam-mines runs (LGPL-3.0; converted with `sclam convert breezyslam`, each
+scan stamped 160 ms before its log line as docs/real_data.md establishes) are calibrated
+whole and in halves (the first and second half of the run's scans, each calibrated alone).
+With no ground truth, agreement is the test of honesty: two calibrations of one robot
+should differ by about their combined σ, z = (a − b) / sqrt(σa² + σb²), |z| > 3 rarely.
+
+censi: Censi et al.'s Khepera III tuples (censi-khepera-tuples; no licence, never copied)
+calibrated with our graph: per laser mounting, our estimate ± marginal σ beside the
+published one ± its σ (radii = diameters / 2), the distance in published σ, the
+down-weighted scan matches and the wall time.
+
+optiodom: wheel calibration of the 12 OptiOdom runs (optiodom-diff) against motion capture,
+and its spread. Each run is calibrated on its own (sclam_ros.core.mocap: the mocap marker as
+a pose sensor with an unknown mount), one keyframe every --step encoder cycles; the table
+gives r_l, r_r, b ± σ per run and the mean and standard deviation over runs
+(repeatability), against the nominal 42 mm / 42 mm / 200 mm, and how far the wheel base's
+regression-dilution correction moved b (or would have, where it is not applied).
+
+Run: .venv/bin/python bench/real_data.py [DATA_DIR] [--only aces,mines,censi,optiodom] [--step 10]
 """
 from __future__ import annotations
 
+import argparse
+import itertools
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -28,13 +53,19 @@ from common import scratch_dir, table  # noqa: E402
 from sclam_ros.core import se2  # noqa: E402
 from sclam_ros.core.estimator import calibrate_keyframes  # noqa: E402
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams  # noqa: E402
-from sclam_ros.io import carmen, relations  # noqa: E402
-from sclam_ros.io.convert import convert_carmen  # noqa: E402
+from sclam_ros.core.mocap import calibrate_with_ground_truth  # noqa: E402
+from sclam_ros.io import carmen, censi, relations  # noqa: E402
+from sclam_ros.io.convert import (  # noqa: E402
+    convert_breezyslam, convert_carmen, optiodom_params, read_optiodom)
 from sclam_ros.io.recording import read_recording  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+SECTIONS = ("aces", "mines", "censi", "optiodom")
 # s: as logged, and the delay the ground truth's short spans point to (docs/real_data.md)
 SCAN_DELAYS = (0.0, 0.1)
+MINES_SCAN_DELAY = 0.16  # s, docs/real_data.md
+CENSI_NAMES = ("r_l [mm]", "r_r [mm]", "b [mm]", "l_x [mm]", "l_y [mm]", "l_yaw [deg]")
+CENSI_SCALE = np.array([1e3, 1e3, 1e3, 1e3, 1e3, 180 / np.pi])
 
 
 def human(key, value):
@@ -147,19 +178,154 @@ def aces(data: Path, work: Path, scan_delay: float) -> None:
                  "< 10 s: translation m", "< 10 s: rotation deg"]))
 
 
-def main(argv) -> int:
-    args = [a for a in argv[1:] if not a.startswith("--")]
-    data = Path(args[0]) if args else ROOT.parent / "shared" / "data"
-    work = scratch_dir("real_data_")
-    if (data / "freiburg-aces" / "aces.clf.bz2").exists():
-        for delay in SCAN_DELAYS:
-            aces(data, work, delay)
-    else:
+def run_aces(data: Path, work: Path) -> None:
+    if not (data / "freiburg-aces" / "aces.clf.bz2").exists():
         print(f"freiburg-aces not found under {data}; skipped")
-    if "--skip-mines" not in argv:
-        import mines_agreement
-        print()
-        mines_agreement.main([argv[0], str(data)])
+        return
+    for delay in SCAN_DELAYS:
+        aces(data, work, delay)
+
+
+def mines_calibrations(src: Path, work: Path) -> dict:
+    """{label: CalibrationResult} for the whole Mines run and its two halves."""
+    out = work / src.stem
+    convert_breezyslam(src, out, scan_delay=MINES_SCAN_DELAY)
+    params = SclamParams.from_yaml(out / "params.yaml")
+    keyframes = read_recording(out / "bag", params).keyframes
+    half = len(keyframes) // 2
+    # The graph keeps only edges between the keyframes it is given: the second half's first
+    # edges, which start in the first half, are left out.
+    return {
+        f"{src.stem} whole": calibrate_keyframes(keyframes, params),
+        f"{src.stem} 1st half": calibrate_keyframes(keyframes[:half], params),
+        f"{src.stem} 2nd half": calibrate_keyframes(keyframes[half:], params),
+    }
+
+
+def run_mines(data: Path, work: Path) -> None:
+    sources = [data / "breezyslam-mines" / f"exp{n}.dat" for n in (1, 2)]
+    if not all(s.exists() for s in sources):
+        print(f"breezyslam-mines not found under {data}; nothing to do")
+        return
+    results = {}
+    for src in sources:
+        results.update(mines_calibrations(src, work))
+    rows = [[label] + [f"{human(k, r.estimate[k]):.2f} ± {human(k, r.sigma[k]):.2f}"
+                       + ("" if r.observable[k] else " (n/o)") for k in CALIBRATION_KEYS]
+            for label, r in results.items()]
+    print(f"Mines rover, scans stamped {MINES_SCAN_DELAY * 1e3:.0f} ms early; mm and degrees, ± 1σ")
+    print(table(rows, ["calibration", *CALIBRATION_KEYS]))
+    pairs = [("exp1 whole", "exp2 whole"), ("exp1 1st half", "exp1 2nd half"),
+             ("exp2 1st half", "exp2 2nd half")]
+    pairs += [(a, b) for a, b in itertools.product(["exp1 1st half", "exp1 2nd half"],
+                                                     ["exp2 1st half", "exp2 2nd half"])]
+    rows = []
+    for a, b in pairs:
+        ra, rb = results[a], results[b]
+        cells = []
+        for k in CALIBRATION_KEYS:
+            if not (ra.observable[k] and rb.observable[k]):
+                cells.append("n/o")
+                continue
+            z = (ra.estimate[k] - rb.estimate[k]) / math.hypot(ra.sigma[k], rb.sigma[k])
+            cells.append(f"{z:+.1f}")
+        rows.append([f"{a} − {b}", *cells])
+    print("\ndifference / combined σ (n/o: not observable in one of them)")
+    print(table(rows, ["pair", *CALIBRATION_KEYS]))
+    zs = [abs(float(c)) for row in rows for c in row[1:] if c != "n/o"]
+    print(f"\n|z| > 2: {sum(z > 2 for z in zs)} of {len(zs)}; |z| > 3: {sum(z > 3 for z in zs)} of {len(zs)}")
+
+
+def run_censi(data: Path) -> None:
+    data = data / "censi-khepera-tuples"
+    if not data.is_dir():
+        print(f"{data} not found; skipped")
+        return
+    worst = 0.0
+    for mounting in censi.MOUNTINGS:
+        tuples = censi.load_tuples(data / f"{mounting}.tuple")
+        published, cov = censi.load_published(data / f"{mounting}_results.json")
+        start = time.perf_counter()
+        ours = censi.calibrate_tuples(tuples)
+        seconds = time.perf_counter() - start
+        z = censi.compare(ours, published, cov)
+        worst = max(worst, float(z.max()))
+        print(f"\n{mounting}: {len(tuples)} tuples, {ours.downweighted} scan matches "
+              f"down-weighted (robust weight < {censi.DOWNWEIGHT_WEIGHT}), "
+              f"start yaw {np.degrees(ours.nominal[5]):.1f} deg, {seconds:.1f} s, "
+              f"variance scales {', '.join(f'{k} {v:.3g}' for k, v in ours.variance_scales.items())}")
+        print(f"  {'parameter':<12} {'ours ± σ':>22} {'Censi 2013 ± σ':>22} {'|Δ|/σ_pub':>10}")
+        for i, name in enumerate(CENSI_NAMES):
+            s = CENSI_SCALE[i]
+            print(f"  {name:<12} {ours.estimate[i] * s:>12.3f} ± {ours.sigma[i] * s:<7.3f}"
+                  f" {published[i] * s:>12.3f} ± {np.sqrt(cov[i, i]) * s:<7.3f} {z[i]:>10.2f}")
+    print(f"\nworst |Δ| = {worst:.2f} published σ")
+
+
+def _dilution_correction(correction) -> str:
+    """The wheel base's regression-dilution correction (core/dilution.py): applied, or
+    what it would have moved b by where it was not."""
+    if correction is None:
+        return "–"
+    moved = correction["shift_percent"]["wheel_base"]
+    return f"{moved:+.2f} %" if correction["applied"] else f"not applied (would be {moved:+.1f} %)"
+
+
+def run_optiodom(data: Path, step: int) -> None:
+    data = data / "optiodom-diff"
+    runs = sorted(data.glob("*/*/*_run-??.csv"))
+    if not runs:
+        print(f"no runs under {data}; skipped")
+        return
+    params = optiodom_params()
+    print(f"keyframe every {step} encoder cycles ({step * 50} ms)")
+    print(f"{'run':<22} {'r_l [mm]':>16} {'r_r [mm]':>16} {'b [mm]':>17} "
+          f"{'marker yaw [deg]':>17} {'s':>5}  dilution correction of b")
+    rows = {"circular": [], "square": []}
+    for path in runs:
+        stamps, truth, ticks = read_optiodom(path)
+        start = time.perf_counter()
+        cal = calibrate_with_ground_truth(stamps, ticks, truth, params, step=step)
+        seconds = time.perf_counter() - start
+        e, s = cal.estimate * 1e3, cal.sigma * 1e3
+        shape = path.parent.parent.name
+        rows[shape].append(cal.estimate[:3])
+        print(f"{shape + ' ' + path.stem[-6:]:<22} {e[0]:8.3f} ± {s[0]:5.3f} {e[1]:8.3f} ± {s[1]:5.3f} "
+              f"{e[2]:8.2f} ± {s[2]:5.2f} {np.degrees(cal.estimate[5]):>17.1f} {seconds:5.1f}  "
+              f"{_dilution_correction(cal.wheel_noise_correction)}")
+    everything = np.array(rows["circular"] + rows["square"])
+    for name, values in [*rows.items(), ("all", everything)]:
+        values = np.array(values) * 1e3
+        if len(values) == 0:
+            continue
+        mean, std = values.mean(0), values.std(0, ddof=1)
+        print(f"{name + ' mean ± sd':<22} {mean[0]:8.3f} ± {std[0]:5.3f} {mean[1]:8.3f} ± {std[1]:5.3f} "
+              f"{mean[2]:8.2f} ± {std[2]:5.2f}")
+
+
+def main(argv) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("data", nargs="?", type=Path, default=ROOT.parent / "shared" / "data",
+                    help="the folder holding one folder per data set")
+    ap.add_argument("--only", default=",".join(SECTIONS),
+                    help=f"comma-separated sections to run, of {','.join(SECTIONS)}")
+    ap.add_argument("--step", type=int, default=10,
+                    help="optiodom: a keyframe every STEP encoder cycles")
+    args = ap.parse_args(argv[1:])
+    chosen = [name.strip() for name in args.only.split(",") if name.strip()]
+    unknown = sorted(set(chosen) - set(SECTIONS))
+    if unknown:
+        ap.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
+    work = scratch_dir("real_data_")
+    run = {"aces": lambda: run_aces(args.data, work),
+           "mines": lambda: run_mines(args.data, work),
+           "censi": lambda: run_censi(args.data),
+           "optiodom": lambda: run_optiodom(args.data, args.step)}
+    for i, name in enumerate(name for name in SECTIONS if name in chosen):
+        if i:
+            print()
+        run[name]()
     return 0
 
 
