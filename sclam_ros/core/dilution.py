@@ -5,8 +5,8 @@ r_l u_l)/b. The angles are measured with noise C_u (slip, quantisation, interpol
 at the true k an odometry edge's expected squared rotation residual is its value at the true
 angles plus D(k) = (K_θu C_u(k) K_θuᵀ)/σ²_θ, and D falls as b grows (K_θu = (−r_l, r_r)/b).
 Least squares follows D to a wheel base too large by ≈ Σ noise² / Σ signal² (the regression
-dilution graph.merge_keyframes describes); bench/dilution.py measures it and what the
-correction leaves on graphs drawn from the model itself, and an investigation on the
+dilution graph.merge_keyframes describes); docs/decisions/wheel_base_dilution.md records
+it and what the correction leaves on graphs drawn from the model itself, and an investigation on the
 simulator outdoors (the scan matches, then also the wheel increments, replaced by the
 truth; docs/decisions/match_scale.md).
 
