@@ -38,7 +38,8 @@ from sclam_ros.frontend.scan_matching import (
     scan_to_points,
     thinned,
 )
-from sclam_ros.frontend.sync import EncoderStream, ScanSynchronizer, increment_between
+from sclam_ros.frontend.encoder_stream import EncoderStream
+from sclam_ros.frontend.sync import ScanSynchronizer, increment_between
 
 
 @dataclass

@@ -40,7 +40,7 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
 
     Positions stay in the encoder's raw unit (ticks, or radians when
     ``params.ticks_per_revolution`` is 0): unwrapping a counter needs the raw value, so the
-    conversion to radians happens in :class:`sclam_ros.frontend.sync.EncoderStream`. They are
+    conversion to radians happens in :class:`sclam_ros.frontend.encoder_stream.EncoderStream`. They are
     multiplied by ``params.left_encoder_sign`` / ``right_encoder_sign`` (a backwards encoder).
 
     Raises MessageRejected with reason
