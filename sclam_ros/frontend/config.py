@@ -112,6 +112,19 @@ class WallSegmentsConfig:
 
 
 @dataclass(frozen=True)
+class DecimationConfig:
+    """Which scans are matched (decimation.py; decision: docs/decisions/scan_matching.md,
+    "Matching every n-th scan")."""
+
+    # s between matched scans in batch: a match's error does not shrink with the motion between its scans.
+    match_period: float = 0.3
+    # s between matched scans in the online calibrator: its guess is its own running estimate.
+    online_match_period: float = 0.1
+    # scan periods the laser's rate is judged from (every scan is matched until then).
+    rate_sample: int = 20
+
+
+@dataclass(frozen=True)
 class SyncConfig:
     """The encoder stream's conditioning and the scans' wait for it (encoder_stream.py,
     sync.py; decision: docs/decisions/slow_odometry.md)."""
@@ -164,3 +177,8 @@ class FrontendConfig:
     pairing: PairingConfig = field(default_factory=PairingConfig)
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     wall_segments: WallSegmentsConfig = field(default_factory=WallSegmentsConfig)
+    decimation: DecimationConfig = field(default_factory=DecimationConfig)
+    sync: SyncConfig = field(default_factory=SyncConfig)
+    # registrations remembered to resolve a match's reference scan to its keyframe (a match
+    # refers to the last scan the matcher placed, at most a few empty scans back).
+    remembered_registrations: int = 256

@@ -197,6 +197,16 @@ class ScanMatcherConfig:
     # build it). Measured (bench, map restarted every 40 scans, guess off by 5 %): RMS error
     # of x of the 1st/2nd/3rd match after a start 14 / 9 / 5 mm, then 2-4 mm.
     warmup_scans: int = 3
+    # rad: turns added to the constant-velocity prediction when the odometry's fails
+    # (ScanMatcher._search): KISS-ICP converges from about 0.15 rad off on the office scans.
+    search_turns: tuple = (0.0, -0.3, 0.3, -0.6, 0.6)
+    # (m, rad): odometry and constant-velocity predictions further apart are both registered
+    # (ScanMatcher.add_scan): 0.1 m in 0.3 s is a change of speed of 0.33 m/s, beyond a
+    # driver's acceleration; reversed odometry at 0.5 m/s puts them 0.3 m apart.
+    predictions_apart: tuple = (0.1, 0.1)
+    # of the points: the overlap with the previous scan by which the constant-velocity
+    # registration must beat the odometry's to replace it.
+    fitness_margin: float = 0.05
     noise: NoiseModel = field(default_factory=NoiseModel)
 
     @classmethod
@@ -206,18 +216,6 @@ class ScanMatcherConfig:
 
 
 # --- matching ------------------------------------------------------------------------------
-
-# Turns (rad) added to the constant-velocity prediction when the odometry's fails (see
-# ScanMatcher._search): KISS-ICP converges from about 0.15 rad off on the office scans.
-SEARCH_TURNS = (0.0, -0.3, 0.3, -0.6, 0.6)
-# When the odometry's prediction and the constant-velocity one are further apart than this
-# (m, rad), both are registered (ScanMatcher.add_scan): 0.1 m in 0.3 s is a change of
-# speed of 0.33 m/s, beyond the simulator's accelerations (≤ 0.6 m/s²: 0.054 m); reversed
-# odometry at 0.5 m/s puts them 0.3 m apart.
-PREDICTIONS_APART = (0.1, 0.1)
-# The constant-velocity registration replaces the odometry's only with this much more
-# overlap with the previous scan (fraction of points within inlier_distance).
-FITNESS_MARGIN = 0.05
 
 
 @dataclass
@@ -327,23 +325,23 @@ class ScanMatcher:
         prediction = se2.compose(self._pose, self._pending) if have_guess else constant_velocity
 
         new_pose, used, failure, fitness, rmse = self._register(sources, prediction)
-        if have_guess and not failure and _apart(prediction, constant_velocity):
+        if have_guess and not failure and _apart(prediction, constant_velocity, c.predictions_apart):
             # The odometry and the laser's own last motion disagree by more than a driver's
             # change of speed in one match (encoders wired wrong, a laser yaw 180° off):
             # a registration from a wrong guess can still converge, in a corridor, to a
             # wrong place that overlaps well. The one the previous scan confirms better
             # wins; ties go to the odometry.
             other = self._register(sources, constant_velocity)
-            if other[2] is None and other[3] > fitness + FITNESS_MARGIN:
+            if other[2] is None and other[3] > fitness + c.fitness_margin:
                 new_pose, used, failure, fitness, rmse = other
                 self.odometry_guess_overruled += 1
         if failure:
             # The odometry can be what is wrong (swapped or backwards encoders, a nominal
             # calibration far off): try again from the constant-velocity prediction, as
-            # KISS-ICP does without odometry, turned by SEARCH_TURNS, so that the laser still
+            # KISS-ICP does without odometry, turned by config.search_turns, so that the laser still
             # measures the motion the wheels contradict (core/wiring.py needs exactly those
             # motions). Without odometry, the turns are what is left to try.
-            turns = SEARCH_TURNS if have_guess else SEARCH_TURNS[1:]
+            turns = c.search_turns if have_guess else c.search_turns[1:]
             retry = self._search(sources, constant_velocity, turns)
             if retry is not None:
                 new_pose, used, failure, fitness, rmse = retry
@@ -443,9 +441,10 @@ class ScanMatcher:
         return float(inliers.mean()), float(np.sqrt(np.mean(d[inliers] ** 2)))
 
 
-def _apart(a, b) -> bool:
+def _apart(a, b, limits) -> bool:
+    """Whether poses a and b are further apart than limits (m, rad)."""
     d = se2.between(a, b)
-    return bool(np.hypot(d[0], d[1]) > PREDICTIONS_APART[0] or abs(d[2]) > PREDICTIONS_APART[1])
+    return bool(np.hypot(d[0], d[1]) > limits[0] or abs(d[2]) > limits[1])
 
 
 def _voxel(points: np.ndarray, size: float) -> np.ndarray:
