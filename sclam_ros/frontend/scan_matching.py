@@ -7,7 +7,7 @@ Pipeline per scan (:meth:`ScanMatcher.add_scan`):
    own [min_range, max_range]; points are (N, 3) with z = 0 in the laser frame.
 2. Voxel downsampling as KISS-ICP does it: the frame at voxel/2 goes into the local map, the
    frame at 1.5·voxel is registered.
-3. KISS-ICP's point-to-map registration (the pybind core, called directly: 6-DoF, but with
+3. KISS-ICP's point-to-map registration (its public Python API: 6-DoF, but with
    every point at z = 0 the out-of-plane directions stay at exactly 0, so the result is
    planar) starts from the pose predicted by the wheel odometry (or, without it, by
    KISS-ICP's constant-velocity model).
@@ -34,7 +34,11 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from kiss_icp.pybind import kiss_icp_pybind as kiss
+from kiss_icp.config import KISSConfig
+from kiss_icp.mapping import VoxelHashMap
+from kiss_icp.registration import Registration
+from kiss_icp.threshold import AdaptiveThreshold
+from kiss_icp.voxelization import voxel_down_sample
 from scipy.spatial import cKDTree
 
 from sclam_ros.core import se2
@@ -249,14 +253,17 @@ class ScanMatcher:
         self.config = config or ScanMatcherConfig()
         self.rejections = rejections if rejections is not None else Rejections()
         c = self.config
-        self._registration = kiss._Registration(c.max_iterations, c.convergence, c.max_threads)
+        self._registration = Registration(c.max_iterations, c.convergence, c.max_threads)
         # Coarse to fine: one local map per voxel size (see ScanMatcherConfig.coarse_voxel_size).
         self._voxel_sizes = [v for v in (c.coarse_voxel_size, c.voxel_size) if v]
-        self._maps = [kiss._VoxelHashMap(v, c.max_range, c.max_points_per_voxel) for v in self._voxel_sizes]
+        self._maps = [VoxelHashMap(v, c.max_range, c.max_points_per_voxel) for v in self._voxel_sizes]
         self._threshold = (
             None
             if c.fixed_threshold is not None
-            else kiss._AdaptiveThreshold(c.initial_threshold, c.min_motion_threshold, c.max_range)
+            else AdaptiveThreshold(KISSConfig(
+                data={"max_range": c.max_range},
+                adaptive_threshold={"initial_threshold": c.initial_threshold,
+                                    "min_motion_th": c.min_motion_threshold}))
         )
         # Scans registered from the constant-velocity prediction after the odometry guess failed.
         self.odometry_guess_failures = 0
@@ -268,7 +275,7 @@ class ScanMatcher:
     def reset(self) -> None:
         """Forget the map; the next scan starts a new one (no match across a reset)."""
         for local_map in self._maps:
-            local_map._clear()
+            local_map.clear()
         self._pose = None  # laser pose (x, y, θ) of the last scan with a pose, map frame
         self._index = None  # its index
         self._stamp = None
@@ -357,7 +364,7 @@ class ScanMatcher:
         correction = se2.between(new_pose, used)
         z = se2.between(new_pose, self._pose)
         if self._threshold is not None:
-            self._threshold._update_model_deviation(se2.to_matrix4(correction))
+            self._threshold.update_model_deviation(se2.to_matrix4(correction))
         self._velocity = z / dt if dt > 0 else np.zeros(3)
         if self._map_scans <= c.warmup_scans:
             # Young map: one or a few scans with the same beam pattern, point-to-point ICP
@@ -386,11 +393,11 @@ class ScanMatcher:
         """ICP of the scan from `prediction` (map frame), coarse to fine: (pose, prediction,
         failure reason or None, fitness, rmse)."""
         c = self.config
-        sigma = c.fixed_threshold if self._threshold is None else self._threshold._compute_threshold()
+        sigma = c.fixed_threshold if self._threshold is None else self._threshold.get_threshold()
         pose_m = se2.to_matrix4(prediction)
         for level_source, local_map in zip(sources, self._maps):
-            pose_m = self._registration._align_points_to_map(
-                kiss._Vector3dVector(level_source), local_map, pose_m, 3.0 * sigma, sigma
+            pose_m = self._registration.align_points_to_map(
+                level_source, local_map, pose_m, 3.0 * sigma, sigma
             )
         new_pose = se2.from_matrix(pose_m)
         correction = se2.between(new_pose, prediction)
@@ -419,8 +426,8 @@ class ScanMatcher:
         self._map_scans = self._map_scans + 1 if keep_map else 1
         for frame_map, local_map in zip(frames_map, self._maps):
             if not keep_map:
-                local_map._clear()
-            local_map._update(kiss._Vector3dVector(frame_map), pose_m)
+                local_map.clear()
+            local_map.update(frame_map, pose_m)
         self._pose, self._index, self._stamp = pose, index, stamp
         self._prev_tree = cKDTree(se2.transform_points(pose, source[:, :2]))
         self._pending = np.zeros(3)
@@ -448,7 +455,7 @@ def _apart(a, b, limits) -> bool:
 
 
 def _voxel(points: np.ndarray, size: float) -> np.ndarray:
-    return np.asarray(kiss._voxel_down_sample(kiss._Vector3dVector(points), size))
+    return voxel_down_sample(points, size)
 
 
 def laser_motion_from_base_motion(base_motion, laser_mount) -> np.ndarray:
