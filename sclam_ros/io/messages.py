@@ -100,6 +100,22 @@ def laser_scan_to_scan(msg) -> Scan:
     )
 
 
+def check_scan(scan: Scan) -> None:
+    """The input gate of every converted scan, live (ros/node.py) and from a bag
+    (io/recording.py): raise MessageRejected if ``scan`` cannot be used at all, so that the
+    same message is counted under the same reason either way.
+
+    Reasons
+      ``scan_empty``             no ranges at all (a scan whose beams are all invalid passes:
+                                 the scan matcher counts it),
+      ``scan_non_finite_stamp``  the stamp is NaN or ±inf.
+    """
+    if len(scan.ranges) == 0:
+        raise MessageRejected("scan_empty", "LaserScan without ranges")
+    if not math.isfinite(scan.stamp):
+        raise MessageRejected("scan_non_finite_stamp", "LaserScan stamp is not finite")
+
+
 # Drivers disagree on whether angle_max is the last beam's angle or one increment beyond it
 # (and float32 angles round): one beam either way is a convention, more is a wrong message.
 BEAM_COUNT_TOLERANCE = 1
