@@ -51,6 +51,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir, table  # noqa: E402
+from sclam_ros.sim.world import OutdoorScene  # noqa: E402
 
 DEG = math.pi / 180.0
 # name: simulate() keywords. The first row is the laser the noise model was measured on.
@@ -263,30 +264,16 @@ def _standard_error(samples):
     return samples.std(axis=0, ddof=1) / math.sqrt(len(samples))
 
 
-OUTDOOR_VARIANTS = ("as simulated (trunks as octagons)", "trunks as 32-gons", "trunks as square boxes",
-                    "without the trunks", "without the parked cars")
-
-
-def scene_variant(variant):
-    """Replace the outdoor world's object builders for this process's run (and the processes
-    it forks), as OUTDOOR_VARIANTS names them: the trunks rounder (32-gons), as square boxes
-    of the same width, or gone, or the parked cars gone (the poles, 0.15 m boxes, and the
-    façade stay); returns a function that puts them back."""
-    from sclam_ros.sim import world
-
-    octagon, box = world._octagon, world._box
-    if variant == OUTDOOR_VARIANTS[1]:
-        def round_object(cx, cy, radius):
-            angles = np.linspace(0.0, 2.0 * np.pi, 33)
-            return world._polyline(*[(cx + radius * np.cos(a), cy + radius * np.sin(a)) for a in angles])
-        world._octagon = round_object
-    elif variant == OUTDOOR_VARIANTS[2]:
-        world._octagon = lambda cx, cy, radius: box(cx, cy, 2.0 * radius, 2.0 * radius)
-    elif variant == OUTDOOR_VARIANTS[3]:
-        world._octagon = lambda cx, cy, radius: []
-    elif variant == OUTDOOR_VARIANTS[4]:
-        world._box = lambda cx, cy, w, h: [] if w > 1.0 else box(cx, cy, w, h)
-    return lambda: (setattr(world, "_octagon", octagon), setattr(world, "_box", box))
+# The outdoor scene's objects changed one factor at a time (sim/world.py OutdoorScene): the
+# trunks rounder (32-gons), as square boxes of the same width, or gone, or the parked cars
+# gone (the poles and the façade stay).
+OUTDOOR_VARIANTS = {
+    "as simulated (trunks as octagons)": OutdoorScene(),
+    "trunks as 32-gons": OutdoorScene(trunks="32-gon"),
+    "trunks as square boxes": OutdoorScene(trunks="box"),
+    "without the trunks": OutdoorScene(trunks="none"),
+    "without the parked cars": OutdoorScene(parked_cars=False),
+}
 
 
 def mirrored_row(row) -> dict:
@@ -317,14 +304,14 @@ def main():
                     help="the scene and the robot reflected left for right (see above)")
     ap.add_argument("--outdoor-variant", choices=OUTDOOR_VARIANTS,
                     help="the outdoor scene with its trunks reshaped or removed "
-                         "(scene_variant); the processes inherit it")
+                         "(OUTDOOR_VARIANTS); other scenes are unchanged")
     args = ap.parse_args()
-    if args.outdoor_variant:
-        scene_variant(args.outdoor_variant)
     if args.factors:
         ROWS.clear()
         ROWS.update(FACTOR_ROWS[args.factors])
     names = [n for i, n in enumerate(ROWS) if args.rows is None or i in args.rows]
+    if args.outdoor_variant:
+        ROWS.update({n: dict(ROWS[n], outdoor=OUTDOOR_VARIANTS[args.outdoor_variant]) for n in names})
     if args.mirrored:
         ROWS.update({n: mirrored_row(ROWS[n]) for n in names})
     workdir = scratch_dir("sclam_sensor_matrix_")

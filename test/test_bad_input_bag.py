@@ -1,6 +1,7 @@
 """A real rosbag2 full of the surprises real robots record: the calibration must survive
 them, count every rejection, and still land near the truth."""
 import math
+from collections import Counter
 
 import numpy as np
 import pytest
@@ -8,6 +9,7 @@ import pytest
 from sclam_ros.io import bag
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.inputs import Scan
+from sclam_ros.io.messages import MessageRejected, check_scan, laser_scan_to_scan
 from sclam_ros.io.recording import read_recording
 from sclam_ros.core.params import CALIBRATION_KEYS, SclamParams
 from sclam_ros.sim import simulate
@@ -16,9 +18,14 @@ WRAP = 65536.0
 
 
 @pytest.fixture(scope="module")
-def corrupted(tmp_path_factory):
+def clean(tmp_path_factory):
     base = tmp_path_factory.mktemp("clean") / "bag"
-    truth = simulate(base, robot="custom", duration=100.0, seed=4)
+    return base, simulate(base, robot="custom", duration=100.0, seed=4)
+
+
+@pytest.fixture(scope="module")
+def corrupted(clean, tmp_path_factory):
+    base, truth = clean
     out = tmp_path_factory.mktemp("bad") / "bag"
     rng = np.random.default_rng(0)
     with bag.BagWriter(out, storage="sqlite3") as writer:
@@ -68,6 +75,42 @@ def test_survives_counts_and_stays_accurate(corrupted):
         assert math.isfinite(result.estimate[key]) and math.isfinite(result.sigma[key])
         assert abs(result.estimate[key] - truth[key]) < 4 * result.sigma[key], key
     assert abs(result.estimate["wheel_base"] - truth["wheel_base"]) / truth["wheel_base"] < 0.01
+
+
+def test_a_bag_rejects_each_bad_scan_as_the_node_does(clean, tmp_path):
+    """One gate (io/messages.check_scan after laser_scan_to_scan, as ros/node.py's _on_scan
+    applies them): the bag path counts the same messages under the same reasons."""
+    base, _ = clean
+    out = tmp_path / "bag"
+    with bag.BagWriter(out, storage="sqlite3") as writer:
+        for n, (topic, t, msg) in enumerate(bag.iter_messages(base, ["/joint_states", "/scan"])):
+            stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            if topic == "/joint_states":
+                writer.write_joint_state(topic, stamp, list(msg.name), list(msg.position), record_time_s=t)
+                continue
+            ranges, angle_min, increment = np.array(msg.ranges, float), msg.angle_min, msg.angle_increment
+            if n % 41 == 0:
+                ranges = np.array([], float)  # empty
+            elif n % 43 == 0:
+                increment = 0.0  # every beam in one direction
+            elif n % 47 == 0:
+                angle_min = math.nan
+            writer.write_scan(topic, Scan(stamp, ranges, angle_min, increment, msg.range_min,
+                                          msg.range_max, 0.0, msg.header.frame_id), record_time_s=t)
+    live = Counter()
+    for _, _, msg in bag.iter_messages(out, ["/scan"]):
+        try:
+            check_scan(laser_scan_to_scan(msg))
+        except MessageRejected as exc:
+            live[exc.reason] += 1
+    assert set(live) == {"scan_empty", "scan_zero_angle_increment", "scan_non_finite_angles"}
+    params = SclamParams.from_yaml(base / "params.yaml")
+    counts = read_recording(out, params).rejections.counts
+    assert {reason: counts.get(reason, 0) for reason in live} == dict(live)
+    # A stamp no bag can hold (header stamps are integers), the same gate's reason:
+    with pytest.raises(MessageRejected) as rejected:
+        check_scan(Scan(math.nan, np.ones(3), 0.0, 0.1, 0.1, 10.0))
+    assert rejected.value.reason == "scan_non_finite_stamp"
 
 
 def test_standing_still_is_a_clear_error_not_a_nan(tmp_path):

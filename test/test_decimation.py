@@ -1,9 +1,13 @@
-"""Which scans are matched (frontend/decimation.py): about MATCH_PERIOD apart at any rate,
+"""Which scans are matched (frontend/decimation.py): about DecimationConfig.match_period apart at any rate,
 the same scans whether reading starts at the recording's start or in the middle."""
 import numpy as np
 import pytest
 
-from sclam_ros.frontend.decimation import MATCH_PERIOD, RATE_SAMPLE, ScanDecimator
+from sclam_ros.frontend.config import DecimationConfig
+from sclam_ros.frontend.decimation import ScanDecimator
+
+MATCH_PERIOD = DecimationConfig().match_period
+RATE_SAMPLE = DecimationConfig().rate_sample
 
 
 def accepted(stamps):

@@ -207,3 +207,35 @@ def test_noise_model_information_is_inverse_variance_and_grows_with_motion():
     small, large = np.array([0.01, 0.0, 0.0]), np.array([0.1, 0.0, 0.3])
     np.testing.assert_allclose(model.information(small), np.diag(1 / model.sigmas(small) ** 2))
     assert np.all(model.sigmas(large) > model.sigmas(small))
+
+
+def test_kiss_icp_public_api_is_the_one_the_matcher_calls():
+    """ScanMatcher calls only KISS-ICP's public Python wrappers (kiss-icp==1.3.0 in
+    requirements.txt); another version that renames or reorders them fails here, by name."""
+    import inspect
+
+    from kiss_icp.mapping import VoxelHashMap
+    from kiss_icp.registration import Registration
+    from kiss_icp.threshold import AdaptiveThreshold
+    from kiss_icp.voxelization import voxel_down_sample
+
+    def parameters(function):
+        return [p for p in inspect.signature(function).parameters if p != "self"]
+
+    assert parameters(Registration.__init__) == ["max_num_iterations", "convergence_criterion",
+                                                 "max_num_threads"]
+    assert parameters(Registration.align_points_to_map) == [
+        "points", "voxel_map", "initial_guess", "max_correspondance_distance", "kernel"]
+    assert parameters(VoxelHashMap.__init__) == ["voxel_size", "max_distance", "max_points_per_voxel"]
+    assert parameters(VoxelHashMap.update) == ["points", "pose"]
+    assert parameters(VoxelHashMap.clear) == []
+    assert parameters(voxel_down_sample) == ["points", "voxel_size"]
+    assert parameters(AdaptiveThreshold.__init__) == ["config"]
+    assert parameters(AdaptiveThreshold.get_threshold) == []
+    assert parameters(AdaptiveThreshold.update_model_deviation) == ["model_deviation"]
+
+
+def test_adaptive_threshold_matches_as_fixed_threshold_none_asks():
+    """The adaptive threshold (fixed_threshold=None) runs through KISS-ICP's KISSConfig."""
+    matcher = ScanMatcher(ScanMatcherConfig(fixed_threshold=None, warmup_scans=0))
+    assert matcher._threshold.get_threshold() == pytest.approx(0.3)  # initial_threshold

@@ -1,17 +1,14 @@
-"""Encoder stream conditioning and wheel angles at scan stamps, against exact answers."""
+"""Encoder stream conditioning (frontend/encoder_stream.py) and wheel angles at scan stamps
+(frontend/sync.py), against exact answers."""
 import math
 
 import numpy as np
 import pytest
 
 from sclam_ros.core.inputs import Rejections, Scan
-from sclam_ros.frontend.sync import (
-    EncoderStream,
-    ScanSynchronizer,
-    SyncConfig,
-    consecutive_increments,
-    increment_between,
-)
+from sclam_ros.frontend.config import SyncConfig
+from sclam_ros.frontend.encoder_stream import EncoderStream
+from sclam_ros.frontend.sync import ScanSynchronizer, consecutive_increments, increment_between
 
 TICKS = 4096.0  # ticks per revolution
 RAD_PER_TICK = 2 * math.pi / TICKS
@@ -67,11 +64,9 @@ def test_interpolation_variance_is_the_error_of_a_constantly_accelerating_wheel(
     """Wheels accelerating uniformly (φ = a t²/2), sampled at 2 Hz and interpolated on the
     line (curved_interval above the period): the line through two samples misses the wheel
     angle by a/2 (t − t_i)(t_i+1 − t). The reported variance is that error, times
-    INTERPOLATION_SIGMA_SCALE, squared; 0 at a sample and at constant speed."""
-    from sclam_ros.frontend.sync import INTERPOLATION_SIGMA_SCALE
-
-    stream = EncoderStream(ticks_per_revolution=0.0,
-                           config=SyncConfig(max_history=100.0, curved_interval=1.0))
+    SyncConfig.interpolation_sigma_scale, squared; 0 at a sample and at constant speed."""
+    config = SyncConfig(max_history=100.0, curved_interval=1.0)
+    stream = EncoderStream(ticks_per_revolution=0.0, config=config)
     accel = np.array([2.0, -3.0])  # rad/s²
     stamps = 0.5 * np.arange(12)
     for t in stamps:
@@ -81,7 +76,7 @@ def test_interpolation_variance_is_the_error_of_a_constantly_accelerating_wheel(
         i = np.searchsorted(stamps, t) - 1
         error = w.angles - 0.5 * accel * t**2
         np.testing.assert_allclose(error, 0.5 * accel * (t - stamps[i]) * (stamps[i + 1] - t), rtol=1e-9)
-        np.testing.assert_allclose(np.sqrt(w.variance), INTERPOLATION_SIGMA_SCALE * np.abs(error), rtol=1e-9)
+        np.testing.assert_allclose(np.sqrt(w.variance), config.interpolation_sigma_scale * np.abs(error), rtol=1e-9)
     np.testing.assert_array_equal(stream.wheel_angles_at(2.0).variance, 0.0)
     steady = EncoderStream(ticks_per_revolution=0.0)
     for t in stamps:

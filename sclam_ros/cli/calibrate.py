@@ -14,7 +14,7 @@ import math
 from pathlib import Path
 
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.frontend.decimation import MATCH_PERIOD
+from sclam_ros.frontend.config import DecimationConfig
 
 log = logging.getLogger("sclam")
 
@@ -330,7 +330,7 @@ def _run(args, warnings) -> int:
         if args.verbose else None,
         config=config,
     )
-    print(f"{result.scans_used} scans matched ({MATCH_PERIOD:g} s apart) over {result.duration_s:.1f} s; "
+    print(f"{result.scans_used} scans matched ({DecimationConfig().match_period:g} s apart) over {result.duration_s:.1f} s; "
           f"solver: {result.iterations} iterations, converged: {result.converged}")
     if not result.converged:
         log.warning("the solver stopped with the parameters still moving by more than %.2g σ "

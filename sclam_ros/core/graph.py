@@ -132,7 +132,7 @@ def odometry_covariance(inputs: GraphInputs, params, k,
     interpolation variance of the increments (GraphInputs.odo_variance) and the path
     between encoder samples (GraphInputs.odo_path_variance, scaled by
     config.composed_path_sigma_scale where an edge is composed of several arcs: those
-    follow most of the path's accelerations; sync.EncoderStream._path_variance gives the
+    follow most of the path's accelerations; encoder_stream.EncoderStream._path_variance gives the
     constant-speed arc's)."""
     path = inputs.odo_path_variance
     if path is not None and inputs.odo_parts is not None:

@@ -19,13 +19,13 @@ class Keyframe:
     stamp: float  # s
     wheel_angles: np.ndarray  # (2,) rad, cumulative, at the scan stamp
     # (2,) rad²: variance of wheel_angles from interpolating the encoders at the stamp
-    # (frontend/sync.py; None: the angles were sampled there)
+    # (frontend/encoder_stream.py; None: the angles were sampled there)
     angle_variance: Optional[np.ndarray] = None
     # s from the last encoder sample at or before the stamp (0: sampled there; None: not
     # known, taken as sampled): graph.merge_keyframes ends edges just after samples
     since_sample: Optional[float] = None
     # rad⁴: sideways path variance of the odometry edge since keyframe index − 1, between
-    # encoder samples (frontend/sync.py EncoderStream._path_variance; None: none known)
+    # encoder samples (frontend/encoder_stream.py EncoderStream._path_variance; None: none known)
     path_variance: Optional[float] = None
     dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
     dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged

@@ -162,7 +162,7 @@ def motion_covariance(dphi, k, wheel_noise, floor=1e-12, lateral_noise=0.0,
     variance lateral_noise² · |s| (m² per m travelled) makes the edge full rank, and keeps
     a robot standing still positive definite. `path_variance` (...,) rad⁴ is where the
     path between slow encoder samples may run beside the constant-speed arcs
-    (frontend/sync.py): times (r²/b)², sideways.
+    (frontend/encoder_stream.py): times (r²/b)², sideways.
 
     `parts` (..., n, 2), the increments split into consecutive sub-intervals (zero-padded,
     as forward_composed takes them): the wheel noise then enters part by part, each along

@@ -112,6 +112,63 @@ class WallSegmentsConfig:
 
 
 @dataclass(frozen=True)
+class DecimationConfig:
+    """Which scans are matched (decimation.py; decision: docs/decisions/scan_matching.md,
+    "Matching every n-th scan")."""
+
+    # s between matched scans in batch: a match's error does not shrink with the motion between its scans.
+    match_period: float = 0.3
+    # s between matched scans in the online calibrator: its guess is its own running estimate.
+    online_match_period: float = 0.1
+    # scan periods the laser's rate is judged from (every scan is matched until then).
+    rate_sample: int = 20
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    """The encoder stream's conditioning and the scans' wait for it (encoder_stream.py,
+    sync.py; decision: docs/decisions/slow_odometry.md)."""
+
+    # s: longest interval between two encoder samples still interpolated across; a longer
+    # silence starts a new segment (the counter may have wrapped more than once, the robot
+    # may have been bumped, a driver restarted). 0.5 s is 10 periods at 20 Hz.
+    max_gap: float = 0.5
+    # periods: odometry slower than max_gap allows (1-2 Hz bases) has a gap at this many of its median period.
+    gap_periods: float = 5.0
+    # s: before the period is known (min_period_sample steps), a step up to this long is
+    # judged against the steps seen so far, itself included, so that a 1-2 Hz base loses
+    # none of its first seconds; a longer first step (a stale first message) is a gap.
+    max_first_period: float = 2.0
+    # s: a stamp earlier than the newest one by more than this is a clock jump (a bag played
+    # in a loop, a clock set back): the history is dropped and a new segment starts. Smaller
+    # steps back are single out-of-order samples and are rejected.
+    clock_jump_backward: float = 1.0
+    # rad/s: an increment larger than max_wheel_speed·dt + jump_margin is not physical (a
+    # counter reset, a driver restart): a new segment starts there. 6 m/s on a 0.1 m wheel.
+    max_wheel_speed: float = 60.0
+    # rad: the margin of that test.
+    jump_margin: float = 0.5
+    # s of history kept behind the newest sample, so memory stays bounded online; the
+    # synchroniser also trims what no pending scan can need.
+    max_history: float = 10.0
+    # s (scan time) a scan waits for the encoder stream to reach its stamp.
+    max_scan_latency: float = 1.0
+    # s: samples further apart than this are interpolated on a curve (EncoderStream._curved:
+    # the cubic through two samples before and two after the stamp, or the parabola through
+    # the one before and the two around it where no second sample follows), not on the
+    # line. Closer samples keep the line: there its error is below the slip noise, and the
+    # second difference of ticks a few ms apart is mostly quantisation and stamp jitter.
+    curved_interval: float = 0.3
+    # steps: the stream's own period is the median of its last this many steps between samples...
+    period_sample: int = 20
+    # steps: ...known once it has seen at least this many (before, max_first_period rules).
+    min_period_sample: int = 3
+    # × the quadratic estimate (EncoderStream._off_line): the interpolation error's 1σ; the
+    # estimate lags a change of acceleration, so the true error is somewhat larger.
+    interpolation_sigma_scale: float = 1.2
+
+
+@dataclass(frozen=True)
 class FrontendConfig:
     """The front end's tuning, by part."""
 
@@ -120,3 +177,8 @@ class FrontendConfig:
     pairing: PairingConfig = field(default_factory=PairingConfig)
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     wall_segments: WallSegmentsConfig = field(default_factory=WallSegmentsConfig)
+    decimation: DecimationConfig = field(default_factory=DecimationConfig)
+    sync: SyncConfig = field(default_factory=SyncConfig)
+    # registrations remembered to resolve a match's reference scan to its keyframe (a match
+    # refers to the last scan the matcher placed, at most a few empty scans back).
+    remembered_registrations: int = 256

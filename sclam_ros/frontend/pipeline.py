@@ -29,7 +29,7 @@ from sclam_ros.core import kinematics
 from sclam_ros.core.inputs import Rejections, Scan
 from sclam_ros.core.keyframe import Keyframe
 from sclam_ros.frontend.config import FrontendConfig
-from sclam_ros.frontend.decimation import MATCH_PERIOD, ScanDecimator
+from sclam_ros.frontend.decimation import ScanDecimator
 from sclam_ros.frontend.point_to_line import RefinedScanMatcher
 from sclam_ros.frontend.report import FrontendReport
 from sclam_ros.frontend.scan_matching import (
@@ -39,7 +39,8 @@ from sclam_ros.frontend.scan_matching import (
     scan_to_points,
     thinned,
 )
-from sclam_ros.frontend.sync import EncoderStream, ScanSynchronizer, increment_between
+from sclam_ros.frontend.encoder_stream import EncoderStream
+from sclam_ros.frontend.sync import ScanSynchronizer, increment_between
 
 
 @dataclass
@@ -54,16 +55,11 @@ class _Registration:
     points: Optional[np.ndarray] = None  # (n, 2) laser frame, if the front end keeps them
 
 
-# Registrations remembered to resolve a match's reference scan to its keyframe; a match
-# refers to the last scan the matcher placed, at most a few empty scans back.
-REMEMBERED_REGISTRATIONS = 256
-
-
 class Frontend:
     """Feeds encoder samples and scans (in arrival order); returns finished keyframes."""
 
     def __init__(self, params, rejections: Optional[Rejections] = None, matcher=None,
-                 match_period: float = MATCH_PERIOD, keep_scan_points: bool = False,
+                 match_period: Optional[float] = None, keep_scan_points: bool = False,
                  config: FrontendConfig = FrontendConfig()):
         self.params = params  # the user's (SclamParams); config is the developer's tuning
         # Keyframes carry their scan's points (Keyframe.scan_points): for the diagnosis's
@@ -71,7 +67,7 @@ class Frontend:
         # 0.3 s is ~35 MB of them).
         self.keep_scan_points = keep_scan_points
         self.rejections = rejections if rejections is not None else Rejections()
-        self.stream = EncoderStream.from_params(params, rejections=self.rejections)
+        self.stream = EncoderStream.from_params(params, config.sync, self.rejections)
         self.sync = ScanSynchronizer(self.stream, self.rejections)
         self.matcher = matcher or ScanMatcher(
             ScanMatcherConfig.from_params(params), rejections=self.rejections
@@ -85,7 +81,9 @@ class Frontend:
         self._registered_angles = None  # WheelAngles (maybe predicted) of the last one
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
-        self.decimator = ScanDecimator(match_period)  # scans matched about match_period apart
+        # scans matched about match_period apart (None: config.decimation.match_period)
+        self.decimator = ScanDecimator(match_period, config.decimation)
+        self._remembered = config.remembered_registrations
 
     @property
     def registered(self) -> int:
@@ -160,7 +158,7 @@ class Frontend:
             registration = self._register(synced.scan, synced.wheels)
         kf.scan_points = registration.points
         self._keyframe_of[registration.number] = index
-        if len(self._keyframe_of) > REMEMBERED_REGISTRATIONS:
+        if len(self._keyframe_of) > self._remembered:
             del self._keyframe_of[next(iter(self._keyframe_of))]
         if registration.laser_motion is not None:
             source = self._keyframe_of.get(registration.match_from)

@@ -7,7 +7,7 @@ Pipeline per scan (:meth:`ScanMatcher.add_scan`):
    own [min_range, max_range]; points are (N, 3) with z = 0 in the laser frame.
 2. Voxel downsampling as KISS-ICP does it: the frame at voxel/2 goes into the local map, the
    frame at 1.5·voxel is registered.
-3. KISS-ICP's point-to-map registration (the pybind core, called directly: 6-DoF, but with
+3. KISS-ICP's point-to-map registration (its public Python API: 6-DoF, but with
    every point at z = 0 the out-of-plane directions stay at exactly 0, so the result is
    planar) starts from the pose predicted by the wheel odometry (or, without it, by
    KISS-ICP's constant-velocity model).
@@ -34,7 +34,11 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-from kiss_icp.pybind import kiss_icp_pybind as kiss
+from kiss_icp.config import KISSConfig
+from kiss_icp.mapping import VoxelHashMap
+from kiss_icp.registration import Registration
+from kiss_icp.threshold import AdaptiveThreshold
+from kiss_icp.voxelization import voxel_down_sample
 from scipy.spatial import cKDTree
 
 from sclam_ros.core import se2
@@ -197,6 +201,16 @@ class ScanMatcherConfig:
     # build it). Measured (bench, map restarted every 40 scans, guess off by 5 %): RMS error
     # of x of the 1st/2nd/3rd match after a start 14 / 9 / 5 mm, then 2-4 mm.
     warmup_scans: int = 3
+    # rad: turns added to the constant-velocity prediction when the odometry's fails
+    # (ScanMatcher._search): KISS-ICP converges from about 0.15 rad off on the office scans.
+    search_turns: tuple = (0.0, -0.3, 0.3, -0.6, 0.6)
+    # (m, rad): odometry and constant-velocity predictions further apart are both registered
+    # (ScanMatcher.add_scan): 0.1 m in 0.3 s is a change of speed of 0.33 m/s, beyond a
+    # driver's acceleration; reversed odometry at 0.5 m/s puts them 0.3 m apart.
+    predictions_apart: tuple = (0.1, 0.1)
+    # of the points: the overlap with the previous scan by which the constant-velocity
+    # registration must beat the odometry's to replace it.
+    fitness_margin: float = 0.05
     noise: NoiseModel = field(default_factory=NoiseModel)
 
     @classmethod
@@ -206,18 +220,6 @@ class ScanMatcherConfig:
 
 
 # --- matching ------------------------------------------------------------------------------
-
-# Turns (rad) added to the constant-velocity prediction when the odometry's fails (see
-# ScanMatcher._search): KISS-ICP converges from about 0.15 rad off on the office scans.
-SEARCH_TURNS = (0.0, -0.3, 0.3, -0.6, 0.6)
-# When the odometry's prediction and the constant-velocity one are further apart than this
-# (m, rad), both are registered (ScanMatcher.add_scan): 0.1 m in 0.3 s is a change of
-# speed of 0.33 m/s, beyond the simulator's accelerations (≤ 0.6 m/s²: 0.054 m); reversed
-# odometry at 0.5 m/s puts them 0.3 m apart.
-PREDICTIONS_APART = (0.1, 0.1)
-# The constant-velocity registration replaces the odometry's only with this much more
-# overlap with the previous scan (fraction of points within inlier_distance).
-FITNESS_MARGIN = 0.05
 
 
 @dataclass
@@ -251,14 +253,17 @@ class ScanMatcher:
         self.config = config or ScanMatcherConfig()
         self.rejections = rejections if rejections is not None else Rejections()
         c = self.config
-        self._registration = kiss._Registration(c.max_iterations, c.convergence, c.max_threads)
+        self._registration = Registration(c.max_iterations, c.convergence, c.max_threads)
         # Coarse to fine: one local map per voxel size (see ScanMatcherConfig.coarse_voxel_size).
         self._voxel_sizes = [v for v in (c.coarse_voxel_size, c.voxel_size) if v]
-        self._maps = [kiss._VoxelHashMap(v, c.max_range, c.max_points_per_voxel) for v in self._voxel_sizes]
+        self._maps = [VoxelHashMap(v, c.max_range, c.max_points_per_voxel) for v in self._voxel_sizes]
         self._threshold = (
             None
             if c.fixed_threshold is not None
-            else kiss._AdaptiveThreshold(c.initial_threshold, c.min_motion_threshold, c.max_range)
+            else AdaptiveThreshold(KISSConfig(
+                data={"max_range": c.max_range},
+                adaptive_threshold={"initial_threshold": c.initial_threshold,
+                                    "min_motion_th": c.min_motion_threshold}))
         )
         # Scans registered from the constant-velocity prediction after the odometry guess failed.
         self.odometry_guess_failures = 0
@@ -270,7 +275,7 @@ class ScanMatcher:
     def reset(self) -> None:
         """Forget the map; the next scan starts a new one (no match across a reset)."""
         for local_map in self._maps:
-            local_map._clear()
+            local_map.clear()
         self._pose = None  # laser pose (x, y, θ) of the last scan with a pose, map frame
         self._index = None  # its index
         self._stamp = None
@@ -327,23 +332,23 @@ class ScanMatcher:
         prediction = se2.compose(self._pose, self._pending) if have_guess else constant_velocity
 
         new_pose, used, failure, fitness, rmse = self._register(sources, prediction)
-        if have_guess and not failure and _apart(prediction, constant_velocity):
+        if have_guess and not failure and _apart(prediction, constant_velocity, c.predictions_apart):
             # The odometry and the laser's own last motion disagree by more than a driver's
             # change of speed in one match (encoders wired wrong, a laser yaw 180° off):
             # a registration from a wrong guess can still converge, in a corridor, to a
             # wrong place that overlaps well. The one the previous scan confirms better
             # wins; ties go to the odometry.
             other = self._register(sources, constant_velocity)
-            if other[2] is None and other[3] > fitness + FITNESS_MARGIN:
+            if other[2] is None and other[3] > fitness + c.fitness_margin:
                 new_pose, used, failure, fitness, rmse = other
                 self.odometry_guess_overruled += 1
         if failure:
             # The odometry can be what is wrong (swapped or backwards encoders, a nominal
             # calibration far off): try again from the constant-velocity prediction, as
-            # KISS-ICP does without odometry, turned by SEARCH_TURNS, so that the laser still
+            # KISS-ICP does without odometry, turned by config.search_turns, so that the laser still
             # measures the motion the wheels contradict (core/wiring.py needs exactly those
             # motions). Without odometry, the turns are what is left to try.
-            turns = SEARCH_TURNS if have_guess else SEARCH_TURNS[1:]
+            turns = c.search_turns if have_guess else c.search_turns[1:]
             retry = self._search(sources, constant_velocity, turns)
             if retry is not None:
                 new_pose, used, failure, fitness, rmse = retry
@@ -359,7 +364,7 @@ class ScanMatcher:
         correction = se2.between(new_pose, used)
         z = se2.between(new_pose, self._pose)
         if self._threshold is not None:
-            self._threshold._update_model_deviation(se2.to_matrix4(correction))
+            self._threshold.update_model_deviation(se2.to_matrix4(correction))
         self._velocity = z / dt if dt > 0 else np.zeros(3)
         if self._map_scans <= c.warmup_scans:
             # Young map: one or a few scans with the same beam pattern, point-to-point ICP
@@ -388,11 +393,11 @@ class ScanMatcher:
         """ICP of the scan from `prediction` (map frame), coarse to fine: (pose, prediction,
         failure reason or None, fitness, rmse)."""
         c = self.config
-        sigma = c.fixed_threshold if self._threshold is None else self._threshold._compute_threshold()
+        sigma = c.fixed_threshold if self._threshold is None else self._threshold.get_threshold()
         pose_m = se2.to_matrix4(prediction)
         for level_source, local_map in zip(sources, self._maps):
-            pose_m = self._registration._align_points_to_map(
-                kiss._Vector3dVector(level_source), local_map, pose_m, 3.0 * sigma, sigma
+            pose_m = self._registration.align_points_to_map(
+                level_source, local_map, pose_m, 3.0 * sigma, sigma
             )
         new_pose = se2.from_matrix(pose_m)
         correction = se2.between(new_pose, prediction)
@@ -421,8 +426,8 @@ class ScanMatcher:
         self._map_scans = self._map_scans + 1 if keep_map else 1
         for frame_map, local_map in zip(frames_map, self._maps):
             if not keep_map:
-                local_map._clear()
-            local_map._update(kiss._Vector3dVector(frame_map), pose_m)
+                local_map.clear()
+            local_map.update(frame_map, pose_m)
         self._pose, self._index, self._stamp = pose, index, stamp
         self._prev_tree = cKDTree(se2.transform_points(pose, source[:, :2]))
         self._pending = np.zeros(3)
@@ -443,13 +448,14 @@ class ScanMatcher:
         return float(inliers.mean()), float(np.sqrt(np.mean(d[inliers] ** 2)))
 
 
-def _apart(a, b) -> bool:
+def _apart(a, b, limits) -> bool:
+    """Whether poses a and b are further apart than limits (m, rad)."""
     d = se2.between(a, b)
-    return bool(np.hypot(d[0], d[1]) > PREDICTIONS_APART[0] or abs(d[2]) > PREDICTIONS_APART[1])
+    return bool(np.hypot(d[0], d[1]) > limits[0] or abs(d[2]) > limits[1])
 
 
 def _voxel(points: np.ndarray, size: float) -> np.ndarray:
-    return np.asarray(kiss._voxel_down_sample(kiss._Vector3dVector(points), size))
+    return voxel_down_sample(points, size)
 
 
 def laser_motion_from_base_motion(base_motion, laser_mount) -> np.ndarray:

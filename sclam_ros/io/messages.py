@@ -40,7 +40,7 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
 
     Positions stay in the encoder's raw unit (ticks, or radians when
     ``params.ticks_per_revolution`` is 0): unwrapping a counter needs the raw value, so the
-    conversion to radians happens in :class:`sclam_ros.frontend.sync.EncoderStream`. They are
+    conversion to radians happens in :class:`sclam_ros.frontend.encoder_stream.EncoderStream`. They are
     multiplied by ``params.left_encoder_sign`` / ``right_encoder_sign`` (a backwards encoder).
 
     Raises MessageRejected with reason
@@ -98,6 +98,22 @@ def laser_scan_to_scan(msg) -> Scan:
         time_increment=float(msg.time_increment),
         frame_id=str(msg.header.frame_id),
     )
+
+
+def check_scan(scan: Scan) -> None:
+    """The input gate of every converted scan, live (ros/node.py) and from a bag
+    (io/recording.py): raise MessageRejected if ``scan`` cannot be used at all, so that the
+    same message is counted under the same reason either way.
+
+    Reasons
+      ``scan_empty``             no ranges at all (a scan whose beams are all invalid passes:
+                                 the scan matcher counts it),
+      ``scan_non_finite_stamp``  the stamp is NaN or ±inf.
+    """
+    if len(scan.ranges) == 0:
+        raise MessageRejected("scan_empty", "LaserScan without ranges")
+    if not math.isfinite(scan.stamp):
+        raise MessageRejected("scan_non_finite_stamp", "LaserScan stamp is not finite")
 
 
 # Drivers disagree on whether angle_max is the last beam's angle or one increment beyond it

@@ -10,6 +10,7 @@ import numpy as np
 from sclam_ros.io import bag
 from sclam_ros.io.messages import (
     MessageRejected,
+    check_scan,
     joint_state_to_raw,
     laser_scan_to_scan,
     stamp_to_sec,
@@ -121,6 +122,7 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
                 scan = laser_scan_to_scan(msg)
                 scan.stamp -= shift
                 frames[scan.frame_id] += 1
+                check_scan(scan)  # the node's gate (ros/node.py _on_scan)
                 output = sink.add_scan(scan)
         except MessageRejected as exc:
             if exc.reason not in sink.rejections.counts:

@@ -28,7 +28,7 @@ from sclam_ros.core import graph as graph_mod
 from sclam_ros.core.inputs import Rejections
 from sclam_ros.core.marginal import Gaussian, gaussian_of_prior
 from sclam_ros.core.params import CALIBRATION_KEYS
-from sclam_ros.frontend.decimation import ONLINE_MATCH_PERIOD
+from sclam_ros.frontend.config import DecimationConfig
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.online.change_detector import ChangeDetector
 from sclam_ros.online.config import OnlineConfig
@@ -52,7 +52,7 @@ class OnlineCalibrator:
         self.solve_every = solve_every
         self.nominal = np.array(params.calibration_vector())
         self.generation = 0  # counts window resets; solves and chunks from older ones are void
-        self.frontend = Frontend(params, self.rejections, match_period=ONLINE_MATCH_PERIOD)
+        self.frontend = Frontend(params, self.rejections, match_period=DecimationConfig().online_match_period)
         self.merger = graph_mod.KeyframeMerger(params.keyframe_interval)
         self.reset_calibration()
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from sclam_ros.core import kinematics
 from sclam_ros.core.inputs import Rejections
-from sclam_ros.frontend.sync import EncoderStream
+from sclam_ros.frontend.encoder_stream import EncoderStream
 
 
 class OdometryIntegrator:

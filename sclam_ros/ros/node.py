@@ -92,7 +92,12 @@ from sclam_ros.core.params import (
     read_yaml_document,
     with_suggestion,
 )
-from sclam_ros.io.messages import MessageRejected, joint_state_to_raw, laser_scan_to_scan
+from sclam_ros.io.messages import (
+    MessageRejected,
+    check_scan,
+    joint_state_to_raw,
+    laser_scan_to_scan,
+)
 from sclam_ros.online.odometry import OdometryIntegrator
 from sclam_ros.ros.tf import TfBroadcaster
 from sclam_ros.online.process import CalibratorProcess
@@ -273,14 +278,9 @@ class SclamNode(Node):
         try:
             scan = laser_scan_to_scan(msg)
             self.laser_frame = scan.frame_id
-            if len(scan.ranges) == 0:
-                self._reject("scan_empty", "LaserScan without ranges")
-                return
-            if not math.isfinite(scan.stamp):
-                self._reject("scan_non_finite_stamp", "LaserScan stamp is not finite")
-                return
+            check_scan(scan)  # the bag path's gate too (io/recording.py)
             self.calibrator.add_scan(scan)
-        except MessageRejected as exc:  # bad beam geometry: counted under its own reason
+        except MessageRejected as exc:  # bad geometry, empty, bad stamp: counted under its reason
             self._reject(exc.reason, exc.detail)
         except Exception as exc:
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")

@@ -49,7 +49,7 @@ SCAN_PHASE = 0.013  # s
 def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None, storage="sqlite3",
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
              progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False, scene="office",
-             laser=None, motion="route") -> dict:
+             laser=None, motion="route", outdoor=None) -> dict:
     """Simulate ``duration`` s of ``robot`` driving through ``scene`` into ``out``.
 
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
@@ -61,6 +61,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     ("straight", "straight_then_turns", "spin", "still": sim.trajectory.MOTIONS).
     ``laser``: further LaserModel fields (fov in rad, range_max, range_noise_per_m,
     dropout, mixed_pixels) beside ``beams`` and ``range_noise``.
+    ``outdoor``: the outdoor scene's objects changed (world.OutdoorScene; other scenes ignore it).
     ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
     """
     report = progress or (lambda message: None)
@@ -78,7 +79,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"], effect_set
     )
     mount = np.array([truth["laser_x"], truth["laser_y"], truth["laser_yaw"]])
-    world = scene_world(scene)
+    world = scene_world(scene, outdoor)
     model = LaserModel(beams=beams, range_noise=range_noise, **(laser or {}))
     # Independent streams per purpose: changing the laser model does not change the route.
     route_seed, encoder_rng, laser_rng = np.random.SeedSequence(seed).spawn(3)

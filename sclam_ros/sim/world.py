@@ -14,6 +14,7 @@ million rays for a 20-minute recording.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -200,13 +201,36 @@ def office_world() -> World:
     return World(np.array(walls, float), nodes, edges, open_nodes, (0.0, 0.0, 30.0, 16.0))
 
 
-def _octagon(cx, cy, radius) -> list[tuple[float, float, float, float]]:
-    """A round object (tree trunk, pole) as a closed octagon."""
-    angles = np.linspace(0.0, 2.0 * np.pi, 9) + np.pi / 8.0
+def _polygon(cx, cy, radius, sides, turn=0.0) -> list[tuple[float, float, float, float]]:
+    """A round object (tree trunk, pole) as a closed polygon of `sides` corners."""
+    angles = np.linspace(0.0, 2.0 * np.pi, sides + 1) + turn
     return _polyline(*[(cx + radius * np.cos(a), cy + radius * np.sin(a)) for a in angles])
 
 
-def outdoor_world() -> World:
+@dataclass(frozen=True)
+class OutdoorScene:
+    """The outdoor scene's objects, as simulated or changed one factor at a time
+    (bench/sensor_matrix.py --outdoor-variant). The layout is the same in every variant."""
+
+    # a tree trunk drawn as: "octagon" (as simulated), "32-gon" (rounder), "box" (a square
+    # of its width) or "none" (no trunks).
+    trunks: str = "octagon"
+    # whether the parked cars are there (the poles and the façade always are).
+    parked_cars: bool = True
+
+    def trunk(self, cx, cy, radius) -> list[tuple[float, float, float, float]]:
+        if self.trunks == "octagon":
+            return _polygon(cx, cy, radius, 8, np.pi / 8.0)
+        if self.trunks == "32-gon":
+            return _polygon(cx, cy, radius, 32)
+        if self.trunks == "box":
+            return _box(cx, cy, 2.0 * radius, 2.0 * radius)
+        if self.trunks == "none":
+            return []
+        raise ValueError(f"unknown trunks {self.trunks!r}: octagon, 32-gon, box or none")
+
+
+def outdoor_world(scene: OutdoorScene = OutdoorScene()) -> World:
     """Open ground (50 m × 30 m) with few long walls: a car park with two streets.
 
     What a planar laser sees outdoors: tree trunks and poles (small round objects), parked
@@ -214,6 +238,7 @@ def outdoor_world() -> World:
     within a 20 m laser's range; there are few lines for a point-to-line matcher. The
     roadmap is a ladder of two streets (y = 8, y = 22) joined by three cross streets;
     objects keep at least 3 m from every street so that loops and spins fit beside them.
+    ``scene``: the objects' variant (OutdoorScene).
     """
     rng = np.random.default_rng(2024)  # a fixed layout: the scene is part of the benchmark
     walls = []
@@ -224,12 +249,12 @@ def outdoor_world() -> World:
             for x in np.arange(8.0, 44.0, 6.0):
                 if min(abs(x - c) for c in cross_x) < 3.5:
                     continue  # keep the crossings clear
-                walls += _octagon(x + rng.uniform(-1.0, 1.0), y + side * rng.uniform(3.5, 4.5),
-                                  rng.uniform(0.2, 0.4))
+                walls += scene.trunk(x + rng.uniform(-1.0, 1.0), y + side * rng.uniform(3.5, 4.5),
+                                     rng.uniform(0.2, 0.4))
     # Parked cars (4.5 m × 1.8 m) south of the south street and north of the north street.
-    for x in (11.0, 17.0, 31.0, 38.5):
+    for x in (11.0, 17.0, 31.0, 38.5) if scene.parked_cars else ():
         walls += _box(x, 8.0 - 5.6, 4.5, 1.8)
-    for x in (12.5, 33.0):
+    for x in (12.5, 33.0) if scene.parked_cars else ():
         walls += _box(x, 22.0 + 5.6, 4.5, 1.8)
     # Poles along the middle cross street.
     for y in (11.0, 15.0, 19.0):
@@ -299,11 +324,12 @@ def mirrored(world: World) -> World:
                  tuple(world.open_nodes), (xmin, -ymax, xmax, -ymin))
 
 
-def scene_world(name: str) -> World:
-    """The scene `name`, or with the MIRRORED suffix that scene mirrored."""
+def scene_world(name: str, outdoor: Optional[OutdoorScene] = None) -> World:
+    """The scene `name`, or with the MIRRORED suffix that scene mirrored; `outdoor`: the
+    outdoor scene's variant (other scenes ignore it)."""
     base = name[:-len(MIRRORED)] if name.endswith(MIRRORED) else name
     if base not in SCENES:
         raise ValueError(f"unknown scene {name!r}; scenes: {', '.join(sorted(SCENES))} "
                          f"(each also as NAME{MIRRORED})")
-    world = SCENES[base]()
+    world = outdoor_world(outdoor) if base == "outdoor" and outdoor is not None else SCENES[base]()
     return mirrored(world) if base != name else world
