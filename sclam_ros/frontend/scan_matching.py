@@ -103,36 +103,14 @@ class NoiseModel:
 
     with t = (z_x, z_y) and θ = z_θ.
 
-    Measured by ``bench/scan_matching_accuracy.py`` (300 s of the simulator's office drive,
-    3000 scans, 360 beams, σ_range 10 mm, range_max 12 m, the default ScanMatcherConfig,
-    odometry guess of a robot miscalibrated by +2 % / −3 %) on the z the graph gets
-    (KISS-ICP, then the point-to-line refinement), error e = z ⊖ z_true:
-
-      - bias (mean e): −0.02 / −0.01 mm, 0.00 mrad — none measurable;
-      - σ (robust, 1.4826·MAD) 1.16 / 1.09 mm, 0.24 mrad; plain σ 1.20 / 1.16 mm,
-        0.26 mrad (99th pct of |e| 3.4 / 3.4 mm, 0.7 mrad);
-      - it hardly grows with the motion: translation 0.9–1.5 mm and rotation 0.12–0.37 mrad
-        in every bin from standing still to 8 cm and 0.1 rad per scan (the bench's binned
-        table). The refinement measures each scan against the previous one's wall lines,
-        whose noise does not depend on how far the laser moved between them. A model
-        that grows with the motion (0.9 mm + 15 mm/m + 12 mm/rad, 0.16 mrad + 3 mrad/m +
-        7.3 mrad/rad: χ²/DoF 0.6 / 0.58 / 0.73 on these matches, 2-5 times too large in
-        turns) gives the turns, where the laser mount is seen, too little weight: RMS
-        err/σ of the default laser's x 0.57 against 0.76 with this one
-        (`python bench/sensor_matrix.py --seeds 20 --duration 120`);
-      - no dependence on the point count between 250 and 400 registered points;
-      - lag-1 correlation of consecutive errors −0.41 to −0.43 in x, y and θ: part of the error
-        belongs to each scan's pose in the local map and cancels between consecutive z
-        (for pure per-pose errors it would be −0.5).
-        correlated_covariance.chain_correlated_covariance accounts for it in the reported σ.
-
-    The least-squares fit of |e| gives (1.12 mm, 0.23 mm/m, 1.24 mm/rad; 0.23 mrad,
-    0.34 mrad/m, 0.38 mrad/rad) with χ²/DoF 1.09 / 1.01 / 1.07; under the defaults below
-    χ²/DoF is 1.08 / 1.00 / 1.02. Where a pair of scans fixes the motion less well
-    (noisier lasers, fewer walls) the refinement's own covariance is added to this model
-    (point_to_line.RefinedScanMatcher), and the calibration rescales the laser edges'
-    noise from the residuals of each recording (variance components), so the model's
-    shape, not its level, is what matters for other lasers.
+    It hardly grows with the motion: the refinement measures each scan against the previous
+    one's wall lines, whose noise does not depend on how far the laser moved between them.
+    Consecutive errors correlate negatively (part of each belongs to a scan's pose in the
+    local map), which correlated_covariance.chain_correlated_covariance accounts for. Where
+    a pair of scans fixes the motion less well, the refinement's own covariance is added
+    (point_to_line.RefinedScanMatcher), and the calibration rescales the laser edges' noise
+    per recording (variance components): the model's shape, not its level, is what matters
+    for other lasers. The measurements: docs/decisions/scan_matching.md#match-noise-model.
     """
 
     xy_base: float = 0.00112
@@ -171,9 +149,8 @@ class ScanMatcherConfig:
     min_range: float = 0.0
     max_range: float = 30.0
     # The final z is refined point-to-line (frontend → point_to_line.py), so KISS-ICP only
-    # has to land close. Measured on a 120 s PowerBot recording (bias, σ of z after
-    # refinement unchanged to 0.01 mm): 20 points/voxel and 100 iterations 6.4 s CPU,
-    # 5 and 30: 5.0 s.
+    # has to land close: fewer points per voxel cost less and change nothing after the
+    # refinement (docs/decisions/scan_matching.md#kiss-icp-effort).
     max_points_per_voxel: int = 5
     # Correspondence kernel σ (m). None = KISS-ICP's adaptive threshold; a float fixes it.
     fixed_threshold: Optional[float] = 0.1
@@ -181,10 +158,8 @@ class ScanMatcherConfig:
     min_motion_threshold: float = 0.01
     max_iterations: int = 30
     # KISS-ICP stops when its update is below this (m, rad). The point-to-line refinement
-    # moves z anyway, so KISS-ICP only has to land in its basin: measured after refinement
-    # (bench/scan_matching_accuracy.py, 300 s): with 1e-3, bias, σ and p99 of z equal
-    # those with 1e-4 to 0.03 mm (table 1), a guess 5 % off leaks into z's scale by at most
-    # 0.004 % (table 3), and a scan takes a fifth less time (4.1 against 5.3 ms, p50).
+    # moves z anyway, so KISS-ICP only has to land in its basin
+    # (docs/decisions/scan_matching.md#kiss-icp-effort).
     convergence: float = 1e-3
     max_threads: int = 1  # one scan is too small to gain from threads; leave cores to the solver
     min_points: int = 30  # fewer returns than this cannot constrain 3 DoF reliably
