@@ -72,8 +72,7 @@ def _at_least(model, sandwich):
     correlated_covariance.chain_correlated_covariance) is right when the edges' noise is as
     stated; the sandwich σ measures the spread from the residuals (heteroscedasticity, correlated
     scan-match errors, a misfit noise shape) but is itself noisy on short runs. Neither may
-    claim more certainty than the other supports. Measured over 20 simulated 2-minute
-    runs: RMS err/σ of 1.0-1.5 either way, with single runs at 3σ for the sandwich alone.
+    claim more certainty than the other supports (docs/decisions/uncertainty.md#either-way).
     Row/column scaling D·Σ·D keeps the covariance positive semidefinite.
     """
     ratio = np.sqrt(np.diag(sandwich)) / np.maximum(np.sqrt(np.diag(model)), 1e-300)

@@ -195,9 +195,8 @@ def merge_keyframes(keyframes, interval: float, config: GraphConfig = GraphConfi
     lost. Why: the wheel base is learned from rotation against wheel angles measured with
     noise, and least squares with a noisy regressor is biased (regression dilution) by
     ≈ Σ noise² / Σ signal² over the edges. Over an edge of length T the rotation signal
-    grows as T² and the wheel noise as T, so the bias falls as 1/T. Measured on a 10-minute
-    simulated PowerBot run: wheel-base bias +0.27 % with one edge per scan (0.1 s), +0.10 %
-    at 0.3 s, +0.05 % (0.7σ) at 0.5 s, with unchanged σ. The merged scan-match covariance
+    grows as T² and the wheel noise as T, so the bias falls as 1/T
+    (docs/decisions/graph.md#merged-edges). The merged scan-match covariance
     is the sum of the parts (their shared-scan errors cancel partly, which the sandwich σ
     accounts for). A merged keyframe ends early where an edge is missing, so gaps stay gaps.
 
@@ -208,10 +207,8 @@ def merge_keyframes(keyframes, interval: float, config: GraphConfig = GraphConfi
     robot turned in part of an encoder interval, cancels inside the edge. For the same
     reason a missing scan match between samples does not end the edge there: the edge
     goes on to the next sample without a laser part (the few matches of that stretch are
-    not used; 3-5 % of them at 1 Hz, where failed matches cluster in fast turns). Measured
-    on simulated 1 Hz drives (60 s, no wheel slip, so only the interpolation errs), the
-    odometry edges' rotation against the truth: 1.7° RMS with edges ending between samples,
-    1.8° with the ends after samples except around missing matches, 0.10° as done here.
+    not used; at 1 Hz a few per cent, where failed matches cluster in fast turns;
+    docs/decisions/slow_odometry.md#edge-ends).
     """
     if interval <= 0 or len(keyframes) < 2:
         return list(keyframes)

@@ -173,8 +173,8 @@ class ScanMatcherConfig:
     gate_rotation: float = 0.3
     gate_fraction: float = 0.5
     # Matches not reported while the local map holds fewer scans than this (they still
-    # build it). Measured (bench, map restarted every 40 scans, guess off by 5 %): RMS error
-    # of x of the 1st/2nd/3rd match after a start 14 / 9 / 5 mm, then 2-4 mm.
+    # build it): the first matches on a young map err several times more
+    # (docs/decisions/scan_matching.md#map-warm-up).
     warmup_scans: int = 3
     # rad: turns added to the constant-velocity prediction when the odometry's fails
     # (ScanMatcher._search): KISS-ICP converges from about 0.15 rad off on the office scans.
