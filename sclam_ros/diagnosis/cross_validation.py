@@ -58,7 +58,7 @@ class Models:
 
     def _fit_noise(self, noise, fit, mech, edges):
         return fit_noise_effects(noise, fit, mech, self.inputs, edges, self.odo_cov,
-                                 self.config.noise.fit_rounds)
+                                 self.config.noise.fit_rounds, self.config.noise.log_range)
 
     def fit_whole(self, names):
         """(Fit of the mechanical effects, fitted noise effects, whole-run cost)."""
@@ -67,7 +67,10 @@ class Models:
             mech, noise = self.split_effects(names)
             fit = fit_effects(self.base, mech) if mech else self.base
             cost = fit.cost
-            if noise:  # 2·ΔNLL: the same scale as the graph's χ²-type cost
+            # 2·ΔNLL: the same scale as the graph's χ²-type cost; both NLLs with the
+            # wheels' level fitted (disagreement.fit_noise_effects), so the difference is
+            # the noise effects' shape, not the base's stated level of the wheels' noise.
+            if noise:
                 before, after = self._fit_noise(noise, fit, mech, self.edges)
                 cost -= 2.0 * float(np.sum(before - after))
             self.whole[key] = (fit, noise, cost)

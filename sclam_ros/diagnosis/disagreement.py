@@ -17,7 +17,7 @@ from sclam_ros.core import graph as graph_mod
 from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor
 from sclam_ros.diagnosis.fitting import Edges, Fit
-from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise
+from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise, level_profiled_nll
 
 
 @dataclass
@@ -90,9 +90,14 @@ def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=()):
     return dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
 
 
-def fit_noise_effects(noise, fit: Fit, mech, inputs, edges: Edges, odo_cov, rounds: int):
+def fit_noise_effects(noise, fit: Fit, mech, inputs, edges: Edges, odo_cov, rounds: int,
+                      log_range: float):
     """Fit the noise effects to the disagreement of `edges` under `fit` (`rounds` of
-    coordinate descent, noise_model.fit_noise); the NLL before and after (per edge)."""
+    coordinate descent, noise_model.fit_noise); the NLL before and after (per edge), each
+    with the wheels' overall level fitted (noise_model.level_profiled_nll), so that their
+    difference is the effects' shape alone: zero when they change nothing."""
     dis = disagreement(fit, mech, inputs, edges, odo_cov)
     fit_noise(noise, edges.pose_i, edges.pose_j, dis.nll, rounds)
-    return dis.nll(), dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
+    return (level_profiled_nll(dis.nll, np.ones(len(edges.pose_i)), log_range),
+            level_profiled_nll(dis.nll, combined_scale(noise, edges.pose_i, edges.pose_j),
+                               log_range))

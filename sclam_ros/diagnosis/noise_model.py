@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from sclam_ros.diagnosis.effects.noise_fit import ml_factor
+
 
 def fit_noise(effects, pose_i, pose_j, nll, rounds: int) -> None:
     """Fit `effects` (kind "noise") to the edges (pose_i, pose_j); nll: per-edge factors
@@ -24,3 +26,23 @@ def combined_scale(effects, pose_i, pose_j):
     for e in effects:
         scale = scale * e.scale_of(pose_i, pose_j)
     return scale
+
+
+def level_profiled_nll(nll, scale, log_range: float) -> np.ndarray:
+    """Per-edge NLL (m,) with the wheels' noise at the effects' factors `scale` ((m,)), its
+    overall level at the one common factor that fits best (within exp(±log_range), as
+    every noise fit searches).
+
+    What a noise effect's likelihood ratio compares: the base model's level is the stated
+    wheel noise at its variance-component scale, which the disagreements may not bear out
+    (exact encoders: hundreds of nats below it); a fitted effect must not take that as its
+    evidence. Both models get their level by the same fit, and only the factors' shape
+    (divided by their geometric mean) differs: factors the same on every edge (a variance
+    ratio of one) give the base model's NLL exactly."""
+    log_scale = np.log(np.asarray(scale, float))
+    if np.ptp(log_scale) == 0.0:
+        shape = np.ones(len(log_scale))
+    else:
+        shape = np.exp(log_scale - log_scale.mean())
+    level = ml_factor(lambda factors: nll(factors * shape), np.ones(len(shape), bool), log_range)
+    return nll(level * shape)

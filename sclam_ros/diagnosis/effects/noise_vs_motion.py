@@ -64,7 +64,14 @@ class NoiseVsMotion(ModelEffect):
                         options={"xatol": 1e-4, "fatol": 1e-6})
         max_slope = self.config.noise.max_slope
         self.slope = float(np.clip(best.x[0], -max_slope, max_slope))
-        self.offset = float(best.x[1] - overall)
+        # The level under the fitted slope, by the same bounded search as `overall`: the
+        # simplex's intercept may wander where the clipped total is flat (every factor at
+        # the bound: exact encoders) and would carry a change of the overall level (e^-0.23
+        # there) that no slope asked for. With no slope the two searches are one: offset 0.
+        slope_z = self.slope * z
+        level = np.log(ml_factor(lambda factors: nll(factors * np.exp(slope_z)),
+                                 np.ones(len(z), bool), log_range))
+        self.offset = float(level - overall)
 
     def _standardised(self, x):
         # Clipped: one edge far outside the fitted range must not get an extreme factor.
