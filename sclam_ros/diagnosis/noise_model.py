@@ -44,5 +44,13 @@ def level_profiled_nll(nll, scale, log_range: float) -> np.ndarray:
         shape = np.ones(len(log_scale))
     else:
         shape = np.exp(log_scale - log_scale.mean())
-    level = ml_factor(lambda factors: nll(factors * shape), np.ones(len(shape), bool), log_range)
-    return nll(level * shape)
+    # Each edge's factor within the range the fits search (as NoiseVsMotion's total clips
+    # them): at a level pinned to the bound, a slope must not reach below it on half the
+    # edges and count the level's gain as its own.
+    bound = np.exp(log_range)
+
+    def at(factors):
+        return nll(np.clip(factors * shape, 1.0 / bound, bound))
+
+    level = ml_factor(at, np.ones(len(shape), bool), log_range)
+    return at(level)
