@@ -109,3 +109,39 @@ def test_a_dead_child_is_reported_and_input_is_not_piled_up(recording):
         assert process.sent == sent and process.dropped == 10
     finally:
         process.stop()
+
+
+def test_the_child_ends_when_the_node_is_killed(tmp_path):
+    """A node killed outright (SIGKILL: no "stop", no atexit) must not leave its calibrator
+    process running: the child notices its parent is gone and ends."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "node_like.py"
+    script.write_text(
+        "import sys, time\n"
+        "from sclam_ros.core.params import SclamParams\n"
+        "from sclam_ros.online.process import CalibratorProcess\n"
+        "if __name__ == '__main__':\n"
+        "    calibrator = CalibratorProcess(SclamParams())\n"
+        "    print(calibrator._process.pid, flush=True)\n"
+        "    time.sleep(120)\n")
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(parent.stdout.readline())
+        assert _alive(child)
+        parent.kill()
+        parent.wait(10)
+        polling.wait_for(lambda: not _alive(child), 10.0,
+                         f"calibrator process {child} to end after its parent was killed")
+    finally:
+        parent.kill()
+
+
+def _alive(pid: int) -> bool:
+    """True while `pid` exists and is not a zombie (an ended child not yet reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False

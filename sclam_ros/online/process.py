@@ -49,6 +49,9 @@ def _serve(params, config, inbox, outbox) -> None:
     from sclam_ros.online.solver_thread import SolverThread
     from sclam_ros.online.calibrator import OnlineCalibrator
 
+    # A daemon child is ended by its parent's normal exit only; a node that is killed would
+    # leave it running, waiting for input forever.
+    parent = multiprocessing.parent_process()
     rejections = Rejections()
     calibrator = OnlineCalibrator(params, rejections, inline_solve=False, config=config)
     lock = threading.Lock()
@@ -73,6 +76,8 @@ def _serve(params, config, inbox, outbox) -> None:
             try:
                 item = inbox.get(timeout=STATUS_PERIOD_S)
             except queue.Empty:  # idle: make sure the node has seen the last of it
+                if not parent.is_alive():
+                    return  # the node died without a "stop" (killed): end with it
                 if reported != handled:
                     report("status")
                 continue
