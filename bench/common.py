@@ -79,20 +79,20 @@ def seeds_arguments(doc, seeds, duration):
     return ap
 
 
-def diagnose_config(settings=()):
-    """The DiagnoseConfig with `settings` ("section.field=value", e.g.
-    "selection.noise_folds=10") changed from the defaults: how a diagnose bench tries
-    another value without touching the code."""
+def configured(config, settings=()):
+    """`config` (a configuration tree of frozen dataclasses: DiagnoseConfig, OnlineConfig,
+    ...) with `settings` ("section.field=value", e.g. "selection.noise_folds=10"; a tuple
+    field takes comma-separated values) changed: how a bench tries another value without
+    touching the code."""
     import dataclasses
 
-    from sclam_ros.diagnosis.config import DiagnoseConfig
-
-    config = DiagnoseConfig()
     for setting in settings:
         path, _, text = setting.partition("=")
         section_name, _, name = path.strip().partition(".")
         section = getattr(config, section_name)
-        value = type(getattr(section, name))(text)
+        old = getattr(section, name)
+        value = (tuple(float(v) for v in text.split(",")) if isinstance(old, tuple)
+                 else type(old)(text))
         config = dataclasses.replace(
             config, **{section_name: dataclasses.replace(section, **{name: value})})
     return config

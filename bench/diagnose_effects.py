@@ -39,7 +39,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import diagnose_config, scratch_dir, table  # noqa: E402
+from common import configured, scratch_dir, table  # noqa: E402
+
+from sclam_ros.diagnosis.config import DiagnoseConfig  # noqa: E402
 
 ROOM = {"x_min": 0.0, "x_max": 11.0, "y_min": 9.0, "y_max": 16.0}  # room n1 of the office
 EXTRA_SLIP = 0.006  # fraction of a revolution after one revolution
@@ -91,7 +93,7 @@ def run_case(scenario, seed, duration, workdir, walls=True, config=None):
     start = time.perf_counter()
     keyframes = read_recording(bag, params, keep_scan_points=walls).keyframes
     read_s = time.perf_counter() - start
-    report = diagnose_keyframes(keyframes, params, config=config or diagnose_config()).report
+    report = diagnose_keyframes(keyframes, params, config=config or DiagnoseConfig()).report
     out = {"scenario": scenario, "seed": seed, "duration": duration,
            "seconds": time.perf_counter() - start, "read_seconds": read_s,
            "selected": [e["name"] for e in report["effects"] if e["selected"]],
@@ -166,7 +168,7 @@ def main():
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a DiagnoseConfig value other than the default (repeatable)")
     args = ap.parse_args()
-    config = diagnose_config(args.set)
+    config = configured(DiagnoseConfig(), args.set)
     names = [n.strip() for n in args.scenarios.split(",")]
     work = scratch_dir("sclam_diagnose_bench_")
     cases = [(n, s) for n in names for s in range(args.first_seed, args.first_seed + args.seeds)]

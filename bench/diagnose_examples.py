@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import diagnose_config, scratch_dir, table  # noqa: E402
+from common import configured, scratch_dir, table  # noqa: E402
+
+from sclam_ros.diagnosis.config import DiagnoseConfig  # noqa: E402
 
 # label, simulate() keywords, duration s, effect whose value is compared, what was injected
 CASES = [
@@ -77,7 +79,7 @@ def main():
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a DiagnoseConfig value other than the default (repeatable)")
     args = ap.parse_args()
-    config = diagnose_config(args.set)
+    config = configured(DiagnoseConfig(), args.set)
     workdir = scratch_dir("sclam_diag_examples_")
     jobs = [(number, *case, workdir, config) for number, case in enumerate(CASES)]
     with ProcessPoolExecutor(args.jobs) as pool:

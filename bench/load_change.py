@@ -32,7 +32,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import scratch_dir, table  # noqa: E402
+from common import configured, scratch_dir, table  # noqa: E402
+
+from sclam_ros.online.config import OnlineConfig  # noqa: E402
 
 SETTLE = 120.0  # s: the first estimates (window filling) are not judged
 
@@ -110,24 +112,6 @@ def run_one(job):
     return out
 
 
-def online_config(assignments):
-    """The default OnlineConfig with `section.field=value` assignments applied."""
-    from dataclasses import replace
-
-    from sclam_ros.online.config import OnlineConfig
-
-    config = OnlineConfig()
-    for assignment in assignments:
-        name, value = assignment.split("=", 1)
-        section, key = name.split(".")
-        part = getattr(config, section)
-        old = getattr(part, key)
-        new = (tuple(float(v) for v in value.split(",")) if isinstance(old, tuple)
-               else type(old)(value))
-        config = replace(config, **{section: replace(part, **{key: new})})
-    return config
-
-
 def covered_from(t, z, start) -> float:
     """Seconds after `start` until z is first below 2 (nan: never)."""
     inside = np.flatnonzero((t >= start) & (z < 2.0))
@@ -151,7 +135,7 @@ def main():
     ap.add_argument("--set", nargs="+", default=[], metavar="SECTION.FIELD=VALUE",
                     help="tuning of the calibrator (sclam_ros/online/config.py)")
     args = ap.parse_args()
-    config = online_config(args.set)
+    config = configured(OnlineConfig(), args.set)
     workdir = scratch_dir("sclam_load_change_")
     jobs = [(name, seed, workdir, config) for name in args.scenarios for seed in range(1, args.seeds + 1)]
     with ProcessPoolExecutor(args.jobs) as pool:
