@@ -232,6 +232,9 @@ def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_R
         notes += f"; {backwards} odometry stamps out of order, sorted"
     if scan_delay:
         notes += f"; scans stamped {scan_delay * 1e3:.0f} ms before their log line"
+    if log.skipped:
+        notes += "; lines not converted: " + ", ".join(
+            f"{name} {count}" for name, count in sorted(log.skipped.items()))
     _finish(out, src, CARMEN, params, notes)
     return {"scans": len(log.lasers), "odometry": len(stamps),
             "duration_s": float(stamps[-1] - stamps[0]),
