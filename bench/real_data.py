@@ -50,7 +50,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import scratch_dir, table  # noqa: E402
 
-from sclam_ros.core import se2  # noqa: E402
+from sclam_ros.core import kinematics, se2  # noqa: E402
 from sclam_ros.core.estimator import calibrate_keyframes  # noqa: E402
 from sclam_ros.core.params import CALIBRATION_KEYS, ODOMETRY_KEYS, SclamParams  # noqa: E402
 from sclam_ros.core.mocap import calibrate_with_ground_truth  # noqa: E402
@@ -72,7 +72,9 @@ def human(key, value):
     return math.degrees(value) if key == "laser_yaw" else 1e3 * value
 
 
-def relation_rows(log, rel, results, nominal) -> list:
+def relation_rows(log, rel, results, nominal, fitted) -> list:
+    """fitted: {label: (r_l / r_r, b / r_r)} fitted to the relations, each made into wheels
+    with the calibrated r_r (the heading does not depend on the scale)."""
     stamps, poses, _ = carmen.odometry_track(log)
     angles, _ = carmen.implied_wheel_angles(poses, carmen.NOMINAL_RADIUS, carmen.NOMINAL_BASE)
     laser_stamps = np.array([laser.stamp for laser in log.lasers])
@@ -87,6 +89,9 @@ def relation_rows(log, rel, results, nominal) -> list:
         "wheels + laser (graph poses)": (stamps, relations.anchored_odometry(
             whole.stamps, whole.poses, stamps, calibrated)),
     }
+    for label, (ratio, base_ratio) in fitted.items():
+        trajectories[f"wheels, ratios fit to the relations {label}"] = (
+            stamps, relations.wheel_odometry(angles, [ratio * k[1], k[1], base_ratio * k[1]]))
     rows = []
     for name, (t, p) in trajectories.items():
         errors = relations.relation_errors(t, p, rel)
@@ -108,15 +113,17 @@ def odometry_ratios(result):
     return r_l / r_r, b / r_r, (math.sqrt(ratio @ cov @ ratio), math.sqrt(base @ cov @ base))
 
 
-def ratios_from_relations(log, rel):
+def ratios_from_relations(log, rel, long=True):
     """The radii's ratio and b / r_r that fit the relations' rotations over spans of 10 s or
-    more best (least squares on the wheel odometry implied from the log), with the σ that
-    the scatter of those rotations gives them. The heading depends on these two only."""
+    more (long) or under 10 s best (least squares on the wheel odometry implied from the
+    log), with the σ that the scatter of those rotations gives them. The heading depends on
+    these two only."""
     from scipy.optimize import least_squares
 
     stamps, poses, _ = carmen.odometry_track(log)
     angles, _ = carmen.implied_wheel_angles(poses, carmen.NOMINAL_RADIUS, carmen.NOMINAL_BASE)
-    long = rel[rel[:, 1] - rel[:, 0] >= relations.LONG_SPAN]
+    span = rel[:, 1] - rel[:, 0]
+    long = rel[span >= relations.LONG_SPAN] if long else rel[span < relations.LONG_SPAN]
 
     def rotation_errors(q):
         odometry = relations.wheel_odometry(angles, [q[0], 1.0, q[1]])
@@ -128,6 +135,26 @@ def ratios_from_relations(log, rel):
                         x_scale=[1e-3, 1e-2])
     cov = np.linalg.inv(fit.jac.T @ fit.jac) * np.mean(fit.fun ** 2)
     return fit.x, np.sqrt(np.diag(cov))
+
+
+def base_ratio_of_matches(keyframes, ratio, base_ratio, min_turn=0.05):
+    """b / r_r at which the wheels turn as the confirmed scan matches do, match by match
+    (least squares of the match's rotation on the wheels' over matches turning more than
+    min_turn rad), for all such matches and for left and right turns: what the laser sees
+    turn by turn, with r_l / r_r held at `ratio`."""
+    wheel, laser = [], []
+    for keyframe in keyframes:
+        if keyframe.laser_motion is None:
+            continue
+        dphi = keyframe.wheel_angles - keyframes[keyframe.laser_from].wheel_angles
+        wheel.append(kinematics.forward(dphi, np.array([ratio, 1.0, base_ratio]))[2])
+        laser.append(keyframe.laser_motion[2])
+    wheel, laser = np.array(wheel), np.array(laser)
+    out = []
+    for pick in (np.abs(wheel) > min_turn, wheel > min_turn, wheel < -min_turn):
+        scale = np.sum(laser[pick] * wheel[pick]) / np.sum(wheel[pick] ** 2)
+        out.append(base_ratio / scale)
+    return out
 
 
 def aces(data: Path, work: Path, scan_delay: float) -> None:
@@ -166,14 +193,23 @@ def aces(data: Path, work: Path, scan_delay: float) -> None:
              f"{base_ratio:.4f} ± {sigma[1]:.4f}", f"{(base_ratio - truth[1]) / sigma[1]:+.1f}"]
             for label, r in results.items()
             for ratio, base_ratio, sigma in [odometry_ratios(r)]]
+    short, short_sigma = ratios_from_relations(log, rel, long=False)
     rows.append(["relations ≥ 10 s (fit)", f"{truth[0]:.5f} ± {truth_sigma[0]:.5f}", "",
                  f"{truth[1]:.4f} ± {truth_sigma[1]:.4f}", ""])
+    rows.append(["relations < 10 s (fit)", f"{short[0]:.5f} ± {short_sigma[0]:.5f}",
+                 f"{(short[0] - truth[0]) / short_sigma[0]:+.1f}",
+                 f"{short[1]:.4f} ± {short_sigma[1]:.4f}",
+                 f"{(short[1] - truth[1]) / short_sigma[1]:+.1f}"])
     print("\nWhat the heading drift depends on: the radii's ratio and the wheel base in right "
           "radii,\nagainst a fit of both to the ground truth's rotations over spans of 10 s or more")
     print(table(rows, ["calibration", "r_l / r_r", "(− fit) / σ", "b / r_r", "(− fit) / σ"]))
     nominal = [carmen.NOMINAL_RADIUS, carmen.NOMINAL_RADIUS, carmen.NOMINAL_BASE]
     print("\nACES relations, mean ± sd of the error")
-    print(table(relation_rows(log, rel, results, nominal),
+    every, left, right = base_ratio_of_matches(keyframes, *truth)
+    print(f"The confirmed scan matches, turn by turn (r_l / r_r at the ≥ 10 s fit): "
+          f"b / r_r = {every:.4f} (left turns {left:.4f}, right turns {right:.4f})")
+    fitted = {"≥ 10 s": truth, "< 10 s": short}
+    print(table(relation_rows(log, rel, results, nominal, fitted),
                 ["trajectory", "≥ 10 s: translation m", "≥ 10 s: rotation deg",
                  "< 10 s: translation m", "< 10 s: rotation deg"]))
 
