@@ -11,7 +11,6 @@ import argparse
 import json
 import logging
 import math
-from pathlib import Path
 
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.frontend.config import DecimationConfig
@@ -36,7 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "nominal and the calibrated parameters) and OUT.truth.tum when the "
                              "recording has ground truth (batch solve; not with --track)")
     parser.add_argument("--truth", metavar="truth.json",
-                        help="true values (e.g. from `sclam simulate`) to print beside the estimate")
+                        help="true values to print beside the estimate: the truth.json of `sclam simulate`, "
+                             "or a JSON object of the six values (parameter names, or r_l, r_r, "
+                             "b, l_x, l_y, l_yaw) under 'true'")
     parser.add_argument("--track", metavar="OUT.csv",
                         help="instead of the batch solve, run the online calibrator of sclam_node "
                              "(sliding window) over the recording as fast as it can and write its "
@@ -310,12 +311,14 @@ def _run(args, warnings) -> int:
     from sclam_ros.cli.progress import ProgressBar
     from sclam_ros.io.recording import scan_frame_id
     from sclam_ros.io.tf_static import with_nominal_laser_pose
+    from sclam_ros.io.truth import read_truth
 
+    # Read first: a truth file that cannot be used fails before minutes of scan matching.
+    truth = read_truth(args.truth) if args.truth else None
     params = SclamParams.from_yaml(args.params)
     # The URDF's laser pose (--urdf, or latched on /tf_static) for the laser_* the file leaves unset.
     params, laser_source = with_nominal_laser_pose(args.bag, params, args.urdf)
     print(laser_source)
-    truth = json.loads(Path(args.truth).read_text()) if args.truth else None
     if args.track:
         return _run_track(args, params, truth)
     recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
