@@ -31,6 +31,7 @@ import numpy as np
 from sclam_ros.core import kinematics, se2
 from sclam_ros.io.bag import BagError, BagWriter
 from sclam_ros.core.params import ODOMETRY_KEYS, SclamParams, atomic_write_text
+from sclam_ros.sim.description import laser_transform, robot_urdf
 from sclam_ros.sim.effects import EffectSet
 from sclam_ros.sim.motion import TrueKinematics
 from sclam_ros.sim.robots import get_preset, true_calibration
@@ -46,6 +47,8 @@ ODOMETRY_TOPIC = "/odom"
 # What the simulated base publishes of its wheels: their JointState, its wheel odometry
 # (nav_msgs/Odometry integrated from the encoders with the nominal values), or both.
 WHEEL_OUTPUTS = ("joint_states", "odom", "both")
+JOINT_UNITS = ("ticks", "rad")
+ROBOT_DESCRIPTION_TOPIC = "/robot_description"
 JOINT_NAMES = ("left_wheel_joint", "right_wheel_joint")
 CONTROL_RATE = 50.0  # Hz, the simulated controller's update rate
 # Scans start a little after the encoders so the two streams never share stamps and the
@@ -56,7 +59,8 @@ SCAN_PHASE = 0.013  # s
 def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None, storage="sqlite3",
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
              progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False, scene="office",
-             laser=None, motion="route", outdoor=None, wheels="joint_states") -> dict:
+             laser=None, motion="route", outdoor=None, wheels="joint_states",
+             description=False, joint_units="ticks") -> dict:
     """Simulate ``duration`` s of ``robot`` driving through ``scene`` into ``out``.
 
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
@@ -72,6 +76,10 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     ``wheels``: "joint_states" (/joint_states), "odom" (/odom only: the base's wheel odometry,
     integrated from the same encoder samples with the nominal values, as
     diff_drive_controller does) or "both"; params.yaml reads /odom only when it is alone.
+    ``description``: also write /robot_description (the URDF) and /tf_static (the laser joint),
+    with the nominal values, as robot_state_publisher latches them.
+    ``joint_units``: the JointState's positions in encoder "ticks" or in "rad" (as
+    ros2_control's joint_state_broadcaster publishes them: still quantised by the encoder).
     ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
     """
     report = progress or (lambda message: None)
@@ -82,6 +90,8 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         shutil.rmtree(out)
     if duration <= 0:
         raise ValueError(f"duration must be > 0 s, got {duration}")
+    if joint_units not in JOINT_UNITS:
+        raise ValueError(f"joint_units must be one of {', '.join(JOINT_UNITS)}, got {joint_units!r}")
     if wheels not in WHEEL_OUTPUTS:
         raise ValueError(f"wheels must be one of {', '.join(WHEEL_OUTPUTS)}, got {wheels!r}")
     preset = get_preset(robot)
@@ -121,8 +131,13 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
 
     report(f"writing {storage} bag {out}")
     odometry = wheel_odometry(encoders, preset) if wheels != "joint_states" else None
-    _write_bag(out, storage, trajectory, encoders, scans, effect_set,
-               joint_states=wheels != "odom", odometry=odometry)
+    latched = None
+    if description:
+        latched = (robot_urdf(preset.name, preset.nominal), laser_transform(preset.nominal))
+    in_rad = joint_units == "rad"
+    positions = encoders.ticks * (2.0 * np.pi / preset.ticks_per_revolution if in_rad else 1.0)
+    _write_bag(out, storage, trajectory, encoders.times, positions, scans, effect_set,
+               joint_states=wheels != "odom", odometry=odometry, latched=latched)
 
     params = SclamParams(
         joint_states_topic=JOINT_STATES_TOPIC,
@@ -132,9 +147,10 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         ticks_per_revolution=float(preset.ticks_per_revolution),
         **preset.nominal,
     )
+    if wheels == "odom" or in_rad:
+        params = dataclasses.replace(params, ticks_per_revolution=0.0)
     if wheels == "odom":
-        params = dataclasses.replace(params, odometry_topic=ODOMETRY_TOPIC,
-                                     ticks_per_revolution=0.0)
+        params = dataclasses.replace(params, odometry_topic=ODOMETRY_TOPIC)
     params.validate()
     params.write_yaml(
         out / "params.yaml",
@@ -167,7 +183,10 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
             "control_rate": CONTROL_RATE,
         },
         "wheels": wheels,
+        "joint_units": joint_units,
         "topics": {
+            **({"robot_description": ROBOT_DESCRIPTION_TOPIC, "tf_static": "/tf_static"}
+               if description else {}),
             **({"joint_states": JOINT_STATES_TOPIC} if wheels != "odom" else {}),
             **({"odometry": ODOMETRY_TOPIC} if wheels != "joint_states" else {}),
             "scan": SCAN_TOPIC,
@@ -207,13 +226,14 @@ def wheel_odometry(encoders, preset):
     return se2.chain(motion), twists
 
 
-def _write_bag(out, storage, trajectory, encoders, scans, effect_set: EffectSet,
-               joint_states=True, odometry=None) -> None:
+def _write_bag(out, storage, trajectory, encoder_times, positions, scans, effect_set: EffectSet,
+               joint_states=True, odometry=None, latched=None) -> None:
     """All messages in record-time order (= header stamp order). ``joint_states``: write the
-    encoders on /joint_states; ``odometry``: (poses, twists) written on /odom at the encoder
-    stamps."""
-    encoder_stamps = START_TIME + effect_set.encoder_stamp(encoders.times)
-    truth_times = _truth_times(encoders.times, trajectory.duration)
+    wheel ``positions`` sampled at ``encoder_times`` on /joint_states; ``odometry``: (poses,
+    twists) written on /odom at the encoder stamps; ``latched``: (URDF text, laser transform)
+    written first on /robot_description and /tf_static."""
+    encoder_stamps = START_TIME + effect_set.encoder_stamp(encoder_times)
+    truth_times = _truth_times(encoder_times, trajectory.duration)
     truth_stamps = START_TIME + truth_times
     # REP-105: the odom frame is where the robot started, so the truth starts at identity.
     truth_poses = se2.between(trajectory.pose_at(truth_times), trajectory.pose_at(0.0))
@@ -226,9 +246,12 @@ def _write_bag(out, storage, trajectory, encoders, scans, effect_set: EffectSet,
     events += [(scan.stamp, 2, i) for i, scan in enumerate(scans)]
     events.sort()
     with BagWriter(out, storage) as bag:
+        if latched is not None:
+            bag.write_string(ROBOT_DESCRIPTION_TOPIC, latched[0], START_TIME)
+            bag.write_tf_static(START_TIME, [latched[1]])
         for stamp, kind, i in events:
             if kind == 0:
-                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, JOINT_NAMES, encoders.ticks[i])
+                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, JOINT_NAMES, positions[i])
             elif kind == 1:
                 bag.write_odometry(GROUND_TRUTH_TOPIC, stamp, truth_poses[i], truth_twists[i])
             elif kind == 3:
