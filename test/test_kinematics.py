@@ -146,3 +146,21 @@ def test_odometry_residual_is_whitened_by_the_motion_covariance():
     lin = f.linearize(values)
     whitened = np.einsum("nij,nj->ni", lin.sqrt_information, lin.residual)
     assert np.all(np.abs(np.linalg.eigvalsh(np.cov(whitened.T)) - 1.0) < 0.12)
+
+
+def test_inverse_recovers_the_wheel_increments_and_measures_sideways_motion():
+    rng = np.random.default_rng(5)
+    k = np.array([0.098, 0.103, 0.41])
+    # Straight, nearly straight (the series branch), turns, spins, reversing.
+    dphi = np.concatenate([rng.normal(0, 2.0, (200, 2)), [[1.0, 1.0], [1.0, 1.0 + 1e-6],
+                                                          [-2.0, 2.0], [-1.5, -1.5]]])
+    got, across = kinematics.inverse(kinematics.forward(dphi, k), k)
+    np.testing.assert_allclose(got, dphi, atol=1e-9)
+    np.testing.assert_allclose(across, 0.0, atol=1e-12)
+    # A sideways push perpendicular to the arc's chord is what `across` reports.
+    motion = kinematics.forward(np.array([3.0, 4.0]), k)
+    half = motion[2] / 2
+    pushed = motion + 0.01 * np.array([-np.sin(half), np.cos(half), 0.0])
+    got, across = kinematics.inverse(pushed, k)
+    np.testing.assert_allclose(got, [3.0, 4.0], atol=1e-9)
+    assert across == pytest.approx(0.01, abs=1e-12)

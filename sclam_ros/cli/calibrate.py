@@ -1,4 +1,4 @@
-"""``sclam calibrate BAG --params PARAMS.yaml``: the six calibration parameters of a recording.
+"""``sclam calibrate BAG [--params PARAMS.yaml]``: the six calibration parameters of a recording.
 
 Reads wheel encoder ticks (sensor_msgs/JointState) and laser scans (sensor_msgs/LaserScan)
 from a rosbag2 (sqlite3 or mcap), registers consecutive scans with KISS-ICP, and estimates
@@ -21,13 +21,20 @@ log = logging.getLogger("sclam")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", help="rosbag2 folder, or its .db3 / .mcap file")
-    parser.add_argument("--params", required=True, metavar="PARAMS.yaml",
-                        help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal values)")
+    parser.add_argument("--params", metavar="PARAMS.yaml",
+                        help="ROS 2 parameters file for node 'sclam' (topics, joints, nominal "
+                             "values); without it they are inferred from the recording's "
+                             "topics, /robot_description (or --urdf) and /tf_static, printed, "
+                             "and written to --save-params")
+    parser.add_argument("--save-params", metavar="OUT.yaml",
+                        help="without --params: where to write the inferred parameters "
+                             "(default: BAGNAME.params.yaml in the current folder)")
     parser.add_argument("--urdf", metavar="ROBOT.urdf",
                         help="take the nominal laser pose (x, y, yaw) from this URDF: the chain "
                              "of fixed joints from base_frame to the scan's frame_id, instead of "
                              "the recording's /tf_static; laser_x, laser_y, laser_yaw set in "
-                             "the parameters file still win")
+                             "the parameters file still win; without --params, also the wheel "
+                             "joints, radius and separation instead of /robot_description")
     parser.add_argument("--json", metavar="OUT.json", help="write the estimate and σ as JSON")
     parser.add_argument("--report", metavar="DIR", help="write figures (trajectories, residuals) here")
     parser.add_argument("--trajectory", metavar="OUT.tum",
@@ -36,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "nominal and the calibrated parameters) and OUT.truth.tum when the "
                              "recording has ground truth (batch solve; not with --track)")
     parser.add_argument("--truth", metavar="truth.json",
-                        help="true values (e.g. from `sclam simulate`) to print beside the estimate")
+                        help="true values to print beside the estimate: the truth.json of `sclam simulate`, "
+                             "or a JSON object of the six values (parameter names, or r_l, r_r, "
+                             "b, l_x, l_y, l_yaw) under 'true'")
     parser.add_argument("--track", metavar="OUT.csv",
                         help="instead of the batch solve, run the online calibrator of sclam_node "
                              "(sliding window) over the recording as fast as it can and write its "
@@ -303,6 +312,21 @@ def _explain_dilution(correction) -> None:
                     "determines them weakly, and they may be off by that much", moves)
 
 
+def _inferred(args):
+    """The parameters inferred from the recording (io/zero_config.py), printed and written
+    as a parameters file the user can edit and pass next time."""
+    from sclam_ros.io.zero_config import infer_params, inferred_params_header
+
+    params, lines = infer_params(args.bag, args.urdf)
+    out = Path(args.save_params or f"{Path(args.bag).resolve().name}.params.yaml")
+    params.write_yaml(out, header=inferred_params_header(args.bag, lines))
+    print("no --params: inferred from the recording")
+    for line in lines:
+        print(f"  {line}")
+    print(f"  written to {out} (edit it and pass it with --params next time)")
+    return params
+
+
 def _run(args, warnings) -> int:
     from sclam_ros.core.config import CoreConfig
     from sclam_ros.core.estimator import calibrate_keyframes
@@ -310,12 +334,17 @@ def _run(args, warnings) -> int:
     from sclam_ros.cli.progress import ProgressBar
     from sclam_ros.io.recording import scan_frame_id
     from sclam_ros.io.tf_static import with_nominal_laser_pose
+    from sclam_ros.io.truth import read_truth
 
-    params = SclamParams.from_yaml(args.params)
-    # The URDF's laser pose (--urdf, or latched on /tf_static) for the laser_* the file leaves unset.
-    params, laser_source = with_nominal_laser_pose(args.bag, params, args.urdf)
-    print(laser_source)
-    truth = json.loads(Path(args.truth).read_text()) if args.truth else None
+    # Read first: a truth file that cannot be used fails before minutes of scan matching.
+    truth = read_truth(args.truth) if args.truth else None
+    if args.params is None:
+        params = _inferred(args)
+    else:
+        params = SclamParams.from_yaml(args.params)
+        # The URDF's laser pose (--urdf, or latched on /tf_static) for the laser_* the file leaves unset.
+        params, laser_source = with_nominal_laser_pose(args.bag, params, args.urdf)
+        print(laser_source)
     if args.track:
         return _run_track(args, params, truth)
     recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))

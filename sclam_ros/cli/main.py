@@ -68,10 +68,13 @@ def input_errors() -> tuple:
     from sclam_ros.io.convert import ConvertError
     from sclam_ros.io.export import ExportError
     from sclam_ros.io.tf_static import LaserMountError
+    from sclam_ros.io.truth import TruthError
+    from sclam_ros.io.zero_config import InferenceError
 
-    # OSError: a path that is a folder, unreadable, or not writable; JSONDecodeError: --truth.
+    # OSError: a path that is a folder, unreadable, or not writable; JSONDecodeError: a JSON input.
     return (CommandError, ParamsError, BagError, CalibrationError, ConvertError, ExportError,
-            LaserMountError, RecordingsError, OSError, json.JSONDecodeError)
+            LaserMountError, RecordingsError, TruthError, InferenceError,
+            OSError, json.JSONDecodeError)
 
 
 def one_line(exc: BaseException) -> str:

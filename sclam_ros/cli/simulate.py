@@ -59,6 +59,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="route: a random drive that excites every parameter; straight, "
                              "straight_then_turns, spin, still: fixed patterns that leave some "
                              "undetermined (default: %(default)s)")
+    parser.add_argument("--wheels", choices=("joint_states", "odom", "both"), default="joint_states",
+                        help="what the base publishes of its wheels: /joint_states (encoder ticks), "
+                             "/odom (wheel odometry integrated from them with the nominal values, "
+                             "as diff_drive_controller does; params.yaml then reads it), or both "
+                             "(default: %(default)s)")
+    parser.add_argument("--robot-description", action="store_true",
+                        help="also write /robot_description (URDF) and /tf_static (laser joint) "
+                             "with the nominal values, as robot_state_publisher latches them, so "
+                             "that `sclam calibrate OUT` runs without a parameters file")
+    parser.add_argument("--joint-units", choices=("ticks", "rad"), default="ticks",
+                        help="JointState positions in encoder ticks, or in rad as ros2_control "
+                             "publishes them (default: %(default)s)")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -95,7 +107,8 @@ def run(args) -> int:
             true_overrides=overrides, storage=args.storage, scan_rate=args.scan_rate,
             beams=args.beams, encoder_rate=args.encoder_rate, range_noise=args.range_noise,
             effects=effects, progress=progress, overwrite=args.overwrite, scene=args.scene,
-            motion=args.motion,
+            motion=args.motion, wheels=args.wheels, description=args.robot_description,
+            joint_units=args.joint_units,
             laser=dict(fov=math.radians(args.fov), range_max=args.range_max,
                        range_noise_per_m=args.range_noise_per_m, dropout=args.dropout,
                        mixed_pixels=args.mixed_pixels,

@@ -53,6 +53,31 @@ def forward(dphi, k):
     return np.stack([s * f1, s * f2, theta], -1)
 
 
+def inverse(motion, k):
+    """The wheel increments that make each motion (dx, dy, dθ) (..., 3), in the frame of its
+    start pose, along the arc through both ends: (dphi (..., 2), across (...)), where
+    ``across`` (m) is the part of the motion perpendicular to that arc, which no pair of wheel
+    rotations makes (0 for a differential drive's own odometry).
+
+    An arc of heading change θ leaves along a chord leaning θ/2 from the start heading, of
+    length c = 2·s·sin(θ/2)/θ, so s = c_along·(θ/2)/sin(θ/2); its sign is that of the
+    forward part of the chord. Then dφ_l = (s − b·θ/2)/r_l, dφ_r = (s + b·θ/2)/r_r.
+    """
+    motion = np.asarray(motion, float)
+    k = np.asarray(k, float)
+    dx, dy, theta = motion[..., 0], motion[..., 1], motion[..., 2]
+    half = theta / 2
+    c, s = np.cos(half), np.sin(half)
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    small = np.abs(half) < _SMALL_ANGLE
+    safe = np.where(small, 1.0, half)
+    # (θ/2)/sin(θ/2) = 1 + (θ/2)²/6 + 7(θ/2)⁴/360 near 0.
+    h2 = half * half
+    arc = along * np.where(small, 1.0 + h2 / 6.0 + 7.0 * h2 * h2 / 360.0, safe / np.sin(safe))
+    dphi = np.stack([(arc - k[..., 2] * half) / k[..., 0], (arc + k[..., 2] * half) / k[..., 1]], -1)
+    return dphi, across
+
+
 def _jacobian_from_partials(s, theta, ds, dtheta):
     """Chain rule through the arc: ∂K/∂p given ∂s/∂p and ∂θ/∂p, each (..., m)."""
     f1, f2, df1, df2 = _arc_factors(theta)

@@ -98,6 +98,13 @@ class SclamParams:
     # --- inputs -------------------------------------------------------------------
     joint_states_topic: str = _param("/joint_states", "sensor_msgs/JointState topic", _non_empty)
     scan_topic: str = _param("/scan", "sensor_msgs/LaserScan topic", _non_empty)
+    odometry_topic: str = _param(
+        "",
+        "nav_msgs/Odometry topic of the base's wheel odometry, read instead of "
+        "joint_states_topic when set: its increments are turned back into wheel rotations "
+        "with the nominal wheel_radius_left, wheel_radius_right and wheel_base, which must be "
+        "those the odometry was computed with. Empty: read joint_states_topic",
+    )
     left_wheel_joint: str = _param("left_wheel_joint", "JointState name of the left wheel", _non_empty)
     right_wheel_joint: str = _param("right_wheel_joint", "JointState name of the right wheel", _non_empty)
     ticks_per_revolution: float = _param(
@@ -191,6 +198,10 @@ class SclamParams:
                     problems.append(problem)
         if self.left_wheel_joint == self.right_wheel_joint:
             problems.append("left_wheel_joint and right_wheel_joint must differ")
+        if self.odometry_topic and (self.ticks_per_revolution or self.encoder_wrap):
+            # One meaning for each value: the implied wheel angles are radians that never wrap.
+            problems.append("with odometry_topic set, ticks_per_revolution and encoder_wrap "
+                            "must be 0 (they describe a JointState's encoders)")
         if problems:
             raise ParamsError("invalid parameters:\n  " + "\n  ".join(problems))
         return self

@@ -169,6 +169,23 @@ class SyncConfig:
 
 
 @dataclass(frozen=True)
+class OdometryInputConfig:
+    """Wheel rotations implied from a nav_msgs/Odometry topic (odometry_wheels.py)."""
+
+    # m: an increment moving sideways by more than this, across the arc through its ends, is
+    # counted: a differential drive's own odometry never does (float rounding is ~1e-12 m),
+    # odometry fused with an IMU, a mouse sensor or a localisation does.
+    sideways_tolerance: float = 1e-4
+    # fraction: the turning in the messages' twist (Σ|ω|·dt) and in their poses (Σ|dθ|) that
+    # differ by more than this come from two sources (a fused heading beside wheel
+    # velocities); a rolling mean of the wheel speeds, as diff_drive_controller applies,
+    # shifts the twist in time but keeps its total.
+    twist_mismatch: float = 0.05
+    # rad: below this much turning in all, the comparison says nothing.
+    min_turning: float = 3.0
+
+
+@dataclass(frozen=True)
 class FrontendConfig:
     """The front end's tuning, by part."""
 
@@ -179,6 +196,7 @@ class FrontendConfig:
     wall_segments: WallSegmentsConfig = field(default_factory=WallSegmentsConfig)
     decimation: DecimationConfig = field(default_factory=DecimationConfig)
     sync: SyncConfig = field(default_factory=SyncConfig)
+    odometry_input: OdometryInputConfig = field(default_factory=OdometryInputConfig)
     # registrations remembered to resolve a match's reference scan to its keyframe (a match
     # refers to the last scan the matcher placed, at most a few empty scans back).
     remembered_registrations: int = 256

@@ -414,6 +414,11 @@ class BagWriter:
         self.write(topic, msgtype, msg, stamp_s if record_time_s is None else record_time_s)
 
 
+    def write_string(self, topic, text, record_time_s) -> None:
+        """std_msgs/String, as robot_state_publisher latches /robot_description."""
+        msgtype = "std_msgs/msg/String"
+        self.write(topic, msgtype, TYPESTORE.types[msgtype](data=str(text)), record_time_s)
+
     def write_tf_static(self, stamp_s, transforms, topic="/tf_static", record_time_s=None) -> None:
         """tf2_msgs/TFMessage of static transforms, as robot_state_publisher latches them.
 

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sclam_ros.core import kinematics, se2
 from sclam_ros.core.inputs import Scan
 from sclam_ros.core.params import SclamParams
 from sclam_ros.io.bag import BagWriter
@@ -158,26 +159,13 @@ def read_carmen(path) -> CarmenLog:
 
 def implied_wheel_angles(poses: np.ndarray, radius: float, base: float):
     """Cumulative (left, right) wheel angles (rad) that reproduce each pose increment along
-    the arc through both poses, and the sideways part of each increment (m) they cannot.
-
-    An arc of heading change dθ and chord c has length s = c · (dθ/2) / sin(dθ/2); its sign is
-    the sign of the forward part of the chord. Then φ_r = (s + b·dθ/2) / r, φ_l = (s − b·dθ/2) / r.
-    """
+    the arc through both poses (core/kinematics.inverse), and the sideways part of each
+    increment (m) they cannot."""
     poses = np.asarray(poses, dtype=float)
-    dx, dy = np.diff(poses[:, 0]), np.diff(poses[:, 1])
-    dtheta = np.angle(np.exp(1j * np.diff(poses[:, 2])))
-    c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
-    forward, sideways = c * dx + s * dy, -s * dx + c * dy
-    # Along an arc the chord leans by dθ/2 from the start heading.
-    along = np.cos(dtheta / 2) * forward + np.sin(dtheta / 2) * sideways
-    across = -np.sin(dtheta / 2) * forward + np.cos(dtheta / 2) * sideways
-    half = dtheta / 2
-    safe = np.where(np.abs(half) > 1e-9, half, 1.0)
-    arc = along * np.where(np.abs(half) > 1e-9, half / np.sin(safe), 1.0)
-    left = (arc - base * dtheta / 2) / radius
-    right = (arc + base * dtheta / 2) / radius
+    dphi, across = kinematics.inverse(se2.between(poses[1:], poses[:-1]),
+                                      (radius, radius, base))
     angles = np.zeros((len(poses), 2))
-    angles[1:, 0], angles[1:, 1] = np.cumsum(left), np.cumsum(right)
+    angles[1:] = np.cumsum(dphi, axis=0)
     return angles, across
 
 

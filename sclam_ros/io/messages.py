@@ -72,6 +72,33 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
             params.right_encoder_sign * right)
 
 
+def quaternion_yaw(q) -> float:
+    """The yaw (rad) of a geometry_msgs/Quaternion: its rotation about z (ZYX Euler angles)."""
+    return math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+
+
+def odometry_to_pose(msg, params) -> tuple[float, tuple, float]:
+    """(stamp s, planar pose (x, y, yaw), yaw rate rad/s) of a nav_msgs/Odometry.
+
+    Raises MessageRejected with reason
+      ``odometry_child_frame``  child_frame_id names another frame than ``params.base_frame``
+                                (an empty one is taken as the base frame),
+      ``odometry_non_finite``   the stamp, position or orientation is NaN or ±inf.
+    """
+    child = str(msg.child_frame_id).lstrip("/")
+    if child and child != params.base_frame.lstrip("/"):
+        raise MessageRejected(
+            "odometry_child_frame",
+            f"child_frame_id {child}, not base_frame {params.base_frame}")
+    p = msg.pose.pose.position
+    yaw = quaternion_yaw(msg.pose.pose.orientation)
+    stamp = stamp_to_sec(msg.header.stamp)
+    values = (stamp, float(p.x), float(p.y), yaw, float(msg.twist.twist.angular.z))
+    if not all(math.isfinite(v) for v in values):
+        raise MessageRejected("odometry_non_finite", f"stamp, x, y, yaw, ω = {values}")
+    return stamp, values[1:4], values[4]
+
+
 def laser_scan_to_scan(msg) -> Scan:
     """sensor_msgs/LaserScan → Scan. Beams are not filtered here: the scan matcher decides
     what a valid return is (0, NaN, inf, out of limits), in one place. The beam geometry is

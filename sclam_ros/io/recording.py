@@ -13,8 +13,11 @@ from sclam_ros.io.messages import (
     check_scan,
     joint_state_to_raw,
     laser_scan_to_scan,
+    odometry_to_pose,
+    quaternion_yaw,
     stamp_to_sec,
 )
+from sclam_ros.frontend.odometry_wheels import WheelsFromOdometry
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.core.inputs import Rejections
 
@@ -36,12 +39,22 @@ class Recording:
 # What each input topic must carry; anything else is a misconfigured topic name.
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 LASER_SCAN_TYPE = "sensor_msgs/msg/LaserScan"
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+
+
+def wheel_input(params) -> tuple:
+    """(parameter name, topic, message type) of the wheel input: the Odometry topic when
+    odometry_topic is set, else the JointState topic."""
+    if params.odometry_topic:
+        return "odometry_topic", params.odometry_topic, ODOMETRY_TYPE
+    return "joint_states_topic", params.joint_states_topic, JOINT_STATE_TYPE
 
 
 def check_topic_types(info: dict, params) -> None:
     """BagError if a configured input topic of the bag (``info``: bag.topic_info) carries
     another message type: its messages would lack every field the conversions read."""
-    for key, wanted in (("joint_states_topic", JOINT_STATE_TYPE), ("scan_topic", LASER_SCAN_TYPE)):
+    wheel_key, _, wheel_type = wheel_input(params)
+    for key, wanted in ((wheel_key, wheel_type), ("scan_topic", LASER_SCAN_TYPE)):
         topic = getattr(params, key)
         msgtype = info.get(topic, (wanted,))[0]
         if msgtype != wanted:
@@ -91,18 +104,67 @@ class HeaderClocks:
 _REJECTED = object()
 
 
-def iter_outputs(path, params, sink, progress=None, start=None, stop=None, counts=None):
+def check_odometry_frame(path, params) -> None:
+    """BagError if the first message on odometry_topic is the motion of another frame than
+    base_frame: the laser pose would be calibrated on one frame, the wheels on another."""
+    messages = bag.iter_messages(path, [params.odometry_topic])
+    try:
+        first = next(messages, None)
+    finally:
+        messages.close()
+    child = str(first[2].child_frame_id).lstrip("/") if first is not None else ""
+    if child and child != params.base_frame.lstrip("/"):
+        raise bag.BagError(
+            f"odometry_topic {params.odometry_topic} is the motion of {child}, not of base_frame "
+            f"{params.base_frame}: set base_frame: {child} (the laser pose is then taken on "
+            f"{child}), or name the Odometry topic of {params.base_frame}")
+
+
+def _explain_odometry_input(params) -> None:
+    log.info("wheel input: %s (nav_msgs/Odometry), turned back into wheel rotations with the "
+             "nominal wheel_radius_left %.4f m, wheel_radius_right %.4f m, wheel_base %.4f m. "
+             "This assumes it is the wheels' own odometry, computed with these values; where "
+             "the base fuses an IMU or other sensors into it, its heading is not the wheels' "
+             "and the wheel base estimated is that of the fused heading",
+             params.odometry_topic, params.wheel_radius_left, params.wheel_radius_right,
+             params.wheel_base)
+
+
+def _warn_about_odometry(odometry: WheelsFromOdometry, topic) -> None:
+    """Say what in the odometry itself shows that its heading is not only the wheels'."""
+    if odometry.sideways:
+        log.warning("%d of %d increments of %s move sideways (%.0f mm in all over %.1f m "
+                    "driven), which no wheel rotation makes; the sideways part is dropped. A "
+                    "differential drive's wheel odometry never does: this odometry fuses other "
+                    "sensors, and its heading is not the wheels'", odometry.sideways,
+                    odometry.increments, topic, 1e3 * odometry.sideways_total, odometry.path)
+    if odometry.twist_disagrees():
+        log.warning("%s: the turn rate in its twist adds up to %.1f rad, its poses turn by %.1f "
+                    "rad: the heading comes from another source than the velocities (a fused "
+                    "IMU?), and the wheel base estimated is that of the heading", topic,
+                    odometry.turning_twist, odometry.turning_poses)
+
+
+def iter_outputs(path, params, sink, progress=None, start=None, stop=None, counts=None,
+                 odometry=None):
     """Feed a bag's messages in record order to `sink` (a Frontend or an OnlineCalibrator:
     anything with add_encoder, add_scan and rejections), through the same conversions the
     node uses; yield what each call returns. `start`/`stop`: record-time window (s).
     `counts`: a bag.ReadCounts to fill (messages read, used and corrupt per topic).
+    `odometry`: the WheelsFromOdometry that turns an odometry_topic into wheel angles (one
+    with the default configuration if not given).
 
     A message the conversions refuse is counted in the sink's rejections under its reason
     and warned about the first time that reason occurs; the others are used. Header stamps
     are put on one clock (HeaderClocks): the first messages are held back until it is known."""
-    topics = [params.joint_states_topic, params.scan_topic]
+    _, wheel_topic, _ = wheel_input(params)
+    topics = [wheel_topic, params.scan_topic]
     info = bag.topic_info(path)
     check_topic_types(info, params)
+    if params.odometry_topic:
+        check_odometry_frame(path, params)
+        odometry = odometry or WheelsFromOdometry(params)
+        _explain_odometry_input(params)
     total = sum(info.get(t, (None, 0))[1] for t in topics)
     if start is not None or stop is not None:  # a window: estimate its share of the messages
         first, last = bag.time_span(path)
@@ -115,7 +177,11 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
     def feed(topic, msg):
         shift = clocks.shift[topic]
         try:
-            if topic == params.joint_states_topic:
+            if topic == wheel_topic and params.odometry_topic:
+                stamp, pose, yaw_rate = odometry_to_pose(msg, params)
+                left, right = odometry.add(stamp, pose, yaw_rate)
+                output = sink.add_encoder(stamp - shift, left, right)
+            elif topic == wheel_topic:
                 stamp, left, right = joint_state_to_raw(msg, params)
                 output = sink.add_encoder(stamp - shift, left, right)
             else:
@@ -155,6 +221,8 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
         log.warning("%s: header.frame_id changes within the recording (%s); the calibration "
                     "takes every scan as coming from one laser", params.scan_topic,
                     ", ".join(f"{frame}: {n} scans" for frame, n in frames.most_common()))
+    if params.odometry_topic:
+        _warn_about_odometry(odometry, wheel_topic)
     if progress is not None:
         progress(total, total)
 
@@ -193,8 +261,7 @@ def read_ground_truth(path, topic=GROUND_TRUTH_TOPIC):
         return None
     stamps, poses = [], []
     for _, _, msg in bag.iter_messages(path, [topic]):
-        q = msg.pose.pose.orientation
-        yaw = np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+        yaw = quaternion_yaw(msg.pose.pose.orientation)
         stamps.append(stamp_to_sec(msg.header.stamp))
         poses.append((msg.pose.pose.position.x, msg.pose.pose.position.y, yaw))
     return np.array(stamps), np.array(poses)

@@ -5,6 +5,7 @@ must be fixed: a laser on a moving joint has no one nominal pose.
 """
 from __future__ import annotations
 
+import io
 import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -17,54 +18,69 @@ from sclam_ros.io.tf_static import (LaserMount, LaserMountError, chain_transform
 XACRO_NAMESPACE = "http://www.ros.org/wiki/xacro"
 
 
-def _check_is_urdf(path: Path) -> None:
-    """LaserMountError unless ``path`` is an XML file whose root is <robot> without xacro
-    macros: yourdfpy itself reads any XML (and garbage, with a recovering parser) into an
-    empty robot, logging the parse errors."""
-    if not path.is_file():
-        raise LaserMountError(f"URDF not found: {path}")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise LaserMountError(f"{path}: not a URDF (not XML: {exc})") from None
+def _check_is_urdf(root, source) -> None:
+    """LaserMountError unless the XML element ``root`` is a <robot> without xacro macros:
+    yourdfpy itself reads any XML (and garbage, with a recovering parser) into an empty
+    robot, logging the parse errors."""
     if root.tag != "robot":
-        raise LaserMountError(f"{path}: not a URDF (its root element is <{root.tag}>, not <robot>)")
+        raise LaserMountError(f"{source}: not a URDF (its root element is <{root.tag}>, not <robot>)")
     if any(str(element.tag).startswith(f"{{{XACRO_NAMESPACE}}}") for element in root.iter()):
-        raise LaserMountError(f"{path}: a xacro file, not a URDF: expand it first "
-                              f"(xacro {path.name} > robot.urdf)")
+        raise LaserMountError(f"{source}: a xacro file, not a URDF: expand it first "
+                              f"(xacro {Path(source).name} > robot.urdf)")
 
 
-def read_joints(path) -> tuple:
-    """(edges, joints, links): edges {child: (parent, 4x4 transform parent←child)}, each
-    joint at its zero position (its <origin>); joints {child: (joint name, joint type)}; the
-    names of the links."""
+def load_robot(path=None, text=None, source=None):
+    """The yourdfpy Robot of the URDF file ``path``, or of the URDF ``text`` (a recording's
+    /robot_description) named ``source`` in errors; LaserMountError if it is not a URDF."""
     import yourdfpy
 
-    path = Path(path)
-    _check_is_urdf(path)
+    source = str(source or path)
+    try:
+        if text is None:
+            if not Path(path).is_file():
+                raise LaserMountError(f"URDF not found: {path}")
+            root = ET.parse(path).getroot()
+        else:
+            root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise LaserMountError(f"{source}: not a URDF (not XML: {exc})") from None
+    _check_is_urdf(root, source)
     quiet = logging.getLogger("yourdfpy")
     level = quiet.level
     quiet.setLevel(logging.CRITICAL)  # what it logs on a bad file: our error says it once
     try:
-        robot = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False).robot
+        robot = yourdfpy.URDF.load(str(path) if text is None else io.StringIO(text),
+                                   build_scene_graph=False, load_meshes=False).robot
     except (KeyError, AttributeError, ValueError, TypeError) as exc:  # a <robot> without name, ...
-        raise LaserMountError(f"{path}: not a URDF yourdfpy can read "
+        raise LaserMountError(f"{source}: not a URDF yourdfpy can read "
                               f"({type(exc).__name__}: {exc})") from None
     finally:
         quiet.setLevel(level)
     if not robot.links:
-        raise LaserMountError(f"{path}: not a URDF (no <link>)")
+        raise LaserMountError(f"{source}: not a URDF (no <link>)")
+    return robot
+
+
+def frame_tree(robot) -> tuple:
+    """(edges, joints, links) of a yourdfpy Robot: edges {child: (parent, 4x4 transform
+    parent←child)}, each joint at its zero position (its <origin>); joints {child: (joint
+    name, joint type)}; the names of the links."""
     edges = {j.child: (j.parent, np.eye(4) if j.origin is None else np.asarray(j.origin, float))
              for j in robot.joints}
     joints = {j.child: (j.name, j.type) for j in robot.joints}
     return edges, joints, [link.name for link in robot.links]
 
 
-def urdf_laser_mount(path, base_frame, laser_frame) -> LaserMount:
-    """The LaserMount of ``laser_frame`` in ``base_frame`` from the URDF file ``path``;
-    LaserMountError if the file is not a URDF, holds no chain between the two frames, or
-    the chain has a joint that is not fixed."""
-    edges, joints, links = read_joints(path)
+def read_joints(path) -> tuple:
+    """frame_tree of the URDF file ``path``."""
+    return frame_tree(load_robot(path))
+
+
+def urdf_laser_mount(path, base_frame, laser_frame, tree=None) -> LaserMount:
+    """The LaserMount of ``laser_frame`` in ``base_frame`` from the URDF file ``path`` (or its
+    frame_tree ``tree``, ``path`` then naming it); LaserMountError if the file is not a URDF,
+    holds no chain between the two frames, or the chain has a joint that is not fixed."""
+    edges, joints, links = tree if tree is not None else read_joints(path)
     base, laser = frame_name(base_frame), frame_name(laser_frame)
     found = chain_transform(edges, base, laser)
     if found is None:

@@ -9,7 +9,9 @@ two extra files beside them that rosbag2 readers ignore:
 - ``truth.json``: the TRUE calibration (same key names), robot, seed, duration, the
   effects applied with their parameters, and the recording's start time.
 
-Topics: ``/joint_states`` (sensor_msgs/JointState, cumulative ticks),
+Topics: ``/joint_states`` (sensor_msgs/JointState, cumulative ticks) and/or ``/odom``
+(nav_msgs/Odometry odom → base_link: the wheel odometry of the nominal values, see
+``wheels``),
 ``/scan`` (sensor_msgs/LaserScan, frame "laser"), ``/ground_truth/odom``
 (nav_msgs/Odometry odom → base_link at the encoder rate, or at the control rate when
 the encoders are slower, true time stamps; the
@@ -19,15 +21,17 @@ Record time = header stamp for every message.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 
-from sclam_ros.core import se2
+from sclam_ros.core import kinematics, se2
 from sclam_ros.io.bag import BagError, BagWriter
-from sclam_ros.core.params import SclamParams, atomic_write_text
+from sclam_ros.core.params import ODOMETRY_KEYS, SclamParams, atomic_write_text
+from sclam_ros.sim.description import laser_transform, robot_urdf
 from sclam_ros.sim.effects import EffectSet
 from sclam_ros.sim.motion import TrueKinematics
 from sclam_ros.sim.robots import get_preset, true_calibration
@@ -39,6 +43,12 @@ START_TIME = 1_700_000_000.0  # s, epoch of t = 0: stamps look like a real recor
 JOINT_STATES_TOPIC = "/joint_states"
 SCAN_TOPIC = "/scan"
 GROUND_TRUTH_TOPIC = "/ground_truth/odom"
+ODOMETRY_TOPIC = "/odom"
+# What the simulated base publishes of its wheels: their JointState, its wheel odometry
+# (nav_msgs/Odometry integrated from the encoders with the nominal values), or both.
+WHEEL_OUTPUTS = ("joint_states", "odom", "both")
+JOINT_UNITS = ("ticks", "rad")
+ROBOT_DESCRIPTION_TOPIC = "/robot_description"
 JOINT_NAMES = ("left_wheel_joint", "right_wheel_joint")
 CONTROL_RATE = 50.0  # Hz, the simulated controller's update rate
 # Scans start a little after the encoders so the two streams never share stamps and the
@@ -49,7 +59,8 @@ SCAN_PHASE = 0.013  # s
 def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None, storage="sqlite3",
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
              progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False, scene="office",
-             laser=None, motion="route", outdoor=None) -> dict:
+             laser=None, motion="route", outdoor=None, wheels="joint_states",
+             description=False, joint_units="ticks") -> dict:
     """Simulate ``duration`` s of ``robot`` driving through ``scene`` into ``out``.
 
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
@@ -62,6 +73,13 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     ``laser``: further LaserModel fields (fov in rad, range_max, range_noise_per_m,
     dropout, mixed_pixels) beside ``beams`` and ``range_noise``.
     ``outdoor``: the outdoor scene's objects changed (world.OutdoorScene; other scenes ignore it).
+    ``wheels``: "joint_states" (/joint_states), "odom" (/odom only: the base's wheel odometry,
+    integrated from the same encoder samples with the nominal values, as
+    diff_drive_controller does) or "both"; params.yaml reads /odom only when it is alone.
+    ``description``: also write /robot_description (the URDF) and /tf_static (the laser joint),
+    with the nominal values, as robot_state_publisher latches them.
+    ``joint_units``: the JointState's positions in encoder "ticks" or in "rad" (as
+    ros2_control's joint_state_broadcaster publishes them: still quantised by the encoder).
     ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
     """
     report = progress or (lambda message: None)
@@ -72,6 +90,10 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         shutil.rmtree(out)
     if duration <= 0:
         raise ValueError(f"duration must be > 0 s, got {duration}")
+    if joint_units not in JOINT_UNITS:
+        raise ValueError(f"joint_units must be one of {', '.join(JOINT_UNITS)}, got {joint_units!r}")
+    if wheels not in WHEEL_OUTPUTS:
+        raise ValueError(f"wheels must be one of {', '.join(WHEEL_OUTPUTS)}, got {wheels!r}")
     preset = get_preset(robot)
     truth = true_calibration(preset, true_overrides)
     effect_set = EffectSet.from_spec(effects).for_duration(duration)
@@ -108,7 +130,14 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     )
 
     report(f"writing {storage} bag {out}")
-    _write_bag(out, storage, trajectory, encoders, scans, effect_set)
+    odometry = wheel_odometry(encoders, preset) if wheels != "joint_states" else None
+    latched = None
+    if description:
+        latched = (robot_urdf(preset.name, preset.nominal), laser_transform(preset.nominal))
+    in_rad = joint_units == "rad"
+    positions = encoders.ticks * (2.0 * np.pi / preset.ticks_per_revolution if in_rad else 1.0)
+    _write_bag(out, storage, trajectory, encoders.times, positions, scans, effect_set,
+               joint_states=wheels != "odom", odometry=odometry, latched=latched)
 
     params = SclamParams(
         joint_states_topic=JOINT_STATES_TOPIC,
@@ -117,7 +146,12 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         right_wheel_joint=JOINT_NAMES[1],
         ticks_per_revolution=float(preset.ticks_per_revolution),
         **preset.nominal,
-    ).validate()
+    )
+    if wheels == "odom" or in_rad:
+        params = dataclasses.replace(params, ticks_per_revolution=0.0)
+    if wheels == "odom":
+        params = dataclasses.replace(params, odometry_topic=ODOMETRY_TOPIC)
+    params.validate()
     params.write_yaml(
         out / "params.yaml",
         header=f"# Nominal parameters of the simulated {preset.name} (sclam simulate, seed {seed}).\n"
@@ -148,8 +182,13 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
             "slip_noise": float(slip_noise),
             "control_rate": CONTROL_RATE,
         },
+        "wheels": wheels,
+        "joint_units": joint_units,
         "topics": {
-            "joint_states": JOINT_STATES_TOPIC,
+            **({"robot_description": ROBOT_DESCRIPTION_TOPIC, "tf_static": "/tf_static"}
+               if description else {}),
+            **({"joint_states": JOINT_STATES_TOPIC} if wheels != "odom" else {}),
+            **({"odometry": ODOMETRY_TOPIC} if wheels != "joint_states" else {}),
             "scan": SCAN_TOPIC,
             "ground_truth": GROUND_TRUTH_TOPIC,
         },
@@ -172,24 +211,50 @@ def _truth_times(encoder_times, duration):
     return np.arange(int(np.floor(duration * CONTROL_RATE + 1e-9)) + 1) / CONTROL_RATE
 
 
-def _write_bag(out, storage, trajectory, encoders, scans, effect_set: EffectSet) -> None:
-    """All messages in record-time order (= header stamp order)."""
-    encoder_stamps = START_TIME + effect_set.encoder_stamp(encoders.times)
-    truth_times = _truth_times(encoders.times, trajectory.duration)
+def wheel_odometry(encoders, preset):
+    """(poses (J, 3), twists (J, 2) v, ω): the encoder samples integrated with the preset's
+    nominal values, as a base driver or diff_drive_controller does; the twist of each
+    sample is its last increment over its interval (0 at the first)."""
+    k = np.array([preset.nominal[key] for key in ODOMETRY_KEYS])
+    dphi = np.diff(encoders.ticks, axis=0) * 2.0 * np.pi / preset.ticks_per_revolution
+    motion = np.zeros((len(encoders.times), 3))
+    motion[1:] = kinematics.forward(dphi, k)
+    twists = np.zeros((len(encoders.times), 2))
+    s, theta = kinematics.arc_length_and_rotation(dphi, k)
+    dt = np.diff(encoders.times)
+    twists[1:, 0], twists[1:, 1] = s / dt, theta / dt
+    return se2.chain(motion), twists
+
+
+def _write_bag(out, storage, trajectory, encoder_times, positions, scans, effect_set: EffectSet,
+               joint_states=True, odometry=None, latched=None) -> None:
+    """All messages in record-time order (= header stamp order). ``joint_states``: write the
+    wheel ``positions`` sampled at ``encoder_times`` on /joint_states; ``odometry``: (poses,
+    twists) written on /odom at the encoder stamps; ``latched``: (URDF text, laser transform)
+    written first on /robot_description and /tf_static."""
+    encoder_stamps = START_TIME + effect_set.encoder_stamp(encoder_times)
+    truth_times = _truth_times(encoder_times, trajectory.duration)
     truth_stamps = START_TIME + truth_times
     # REP-105: the odom frame is where the robot started, so the truth starts at identity.
     truth_poses = se2.between(trajectory.pose_at(truth_times), trajectory.pose_at(0.0))
     truth_twists = trajectory.twist_at(truth_times)
     # (record time, kind, index); kind orders simultaneous messages deterministically.
-    events = [(t, 0, i) for i, t in enumerate(encoder_stamps)]
+    events = [(t, 0, i) for i, t in enumerate(encoder_stamps)] if joint_states else []
+    if odometry is not None:
+        events += [(t, 3, i) for i, t in enumerate(encoder_stamps)]
     events += [(t, 1, i) for i, t in enumerate(truth_stamps)]
     events += [(scan.stamp, 2, i) for i, scan in enumerate(scans)]
     events.sort()
     with BagWriter(out, storage) as bag:
+        if latched is not None:
+            bag.write_string(ROBOT_DESCRIPTION_TOPIC, latched[0], START_TIME)
+            bag.write_tf_static(START_TIME, [latched[1]])
         for stamp, kind, i in events:
             if kind == 0:
-                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, JOINT_NAMES, encoders.ticks[i])
+                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, JOINT_NAMES, positions[i])
             elif kind == 1:
                 bag.write_odometry(GROUND_TRUTH_TOPIC, stamp, truth_poses[i], truth_twists[i])
+            elif kind == 3:
+                bag.write_odometry(ODOMETRY_TOPIC, stamp, odometry[0][i], odometry[1][i])
             else:
                 bag.write_scan(SCAN_TOPIC, scans[i])
