@@ -157,12 +157,12 @@ def base_ratio_of_matches(keyframes, ratio, base_ratio, min_turn=0.05):
     return out
 
 
-def aces(data: Path, work: Path, scan_delay: float) -> None:
+def aces(data: Path, work: Path, scan_delay: float, fov: float) -> None:
     """The scans stamped ``scan_delay`` s before their log lines, and the relations' times
-    (the scans') with them."""
+    (the scans') with them; their beams spread over ``fov`` rad."""
     src = data / "freiburg-aces" / "aces.clf.bz2"
     out = work / f"aces_{scan_delay * 1e3:.0f}ms"
-    convert_carmen(src, out, scan_delay=scan_delay)
+    convert_carmen(src, out, scan_delay=scan_delay, fov=fov)
     params = SclamParams.from_yaml(out / "params.yaml")
     recording = read_recording(out / "bag", params)
     keyframes = recording.keyframes
@@ -171,7 +171,8 @@ def aces(data: Path, work: Path, scan_delay: float) -> None:
                "1st half": calibrate_keyframes(keyframes[:half], params),
                "2nd half": calibrate_keyframes(keyframes[half:], params)}
     report = recording.frontend.report()
-    print(f"\n## ACES, scans stamped {scan_delay * 1e3:.0f} ms before their log lines\n")
+    print(f"\n## ACES, scans stamped {scan_delay * 1e3:.0f} ms before their log lines, "
+          f"beams over {math.degrees(fov):.1f}°\n")
     print(f"{len(keyframes)} scans matched; {report.matches} matches, "
           f"{report.confirmed} confirmed (not used: {report.unconfirmed}); "
           f"laser judged {'noisy' if report.noisy_laser else 'quiet'} "
@@ -214,12 +215,12 @@ def aces(data: Path, work: Path, scan_delay: float) -> None:
                  "< 10 s: translation m", "< 10 s: rotation deg"]))
 
 
-def run_aces(data: Path, work: Path) -> None:
+def run_aces(data: Path, work: Path, fov: float) -> None:
     if not (data / "freiburg-aces" / "aces.clf.bz2").exists():
         print(f"freiburg-aces not found under {data}; skipped")
         return
     for delay in SCAN_DELAYS:
-        aces(data, work, delay)
+        aces(data, work, delay, fov)
 
 
 def mines_calibrations(src: Path, work: Path) -> dict:
@@ -346,6 +347,9 @@ def main(argv) -> int:
                     help="the folder holding one folder per data set")
     ap.add_argument("--only", default=",".join(SECTIONS),
                     help=f"comma-separated sections to run, of {','.join(SECTIONS)}")
+    ap.add_argument("--aces-fov", type=float, default=math.degrees(carmen.FLASER_FOV),
+                    metavar="DEG", help="aces: the span of the FLASER beams (the log does "
+                                        "not state it; sclam convert carmen --fov)")
     ap.add_argument("--step", type=int, default=10,
                     help="optiodom: a keyframe every STEP encoder cycles")
     args = ap.parse_args(argv[1:])
@@ -354,7 +358,7 @@ def main(argv) -> int:
     if unknown:
         ap.error(f"unknown section(s) {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
     work = scratch_dir("real_data_")
-    run = {"aces": lambda: run_aces(args.data, work),
+    run = {"aces": lambda: run_aces(args.data, work, math.radians(args.aces_fov)),
            "mines": lambda: run_mines(args.data, work),
            "censi": lambda: run_censi(args.data),
            "optiodom": lambda: run_optiodom(args.data, args.step)}

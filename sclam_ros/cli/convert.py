@@ -15,6 +15,7 @@ and ``ATTRIBUTION.md`` (source, commit and licence; keep it with the data).
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="breezyslam and carmen: each scan was taken S seconds before its log "
                              "line (the Mines logs: 0.16, found by sclam diagnose; the ACES log: "
                              "0.1, from its ground truth; default 0)")
+    parser.add_argument("--fov", type=float, default=None, metavar="DEG",
+                        help="carmen: the span of an FLASER line's beams, first to last (the "
+                             "log does not state it; default 180, as CARMEN's own reader)")
     parser.add_argument("--nominal-radius", type=float, default=None, metavar="M",
                         help="carmen only: wheel radius the wheel rotations are implied with "
                              "(default 0.1 m)")
@@ -47,6 +51,8 @@ def run(args) -> int:
     nominal = {"radius": args.nominal_radius, "base": args.nominal_base}
     if any(v is not None for v in nominal.values()) and args.format != "carmen":
         raise CommandError("--nominal-radius and --nominal-base apply to carmen logs only")
+    if args.fov is not None and not (args.format == "carmen" and 0 < args.fov <= 360):
+        raise CommandError("--fov applies to carmen logs only, in (0, 360] degrees")
     for name, value in nominal.items():
         if value is not None and not (0 < value < 10):
             raise CommandError(f"--nominal-{name} must be in (0, 10) m, got {value}")
@@ -54,6 +60,8 @@ def run(args) -> int:
     if args.format == "carmen":
         options = {k: v for k, v in nominal.items() if v is not None}
         options["scan_delay"] = args.scan_delay
+        if args.fov is not None:
+            options["fov"] = math.radians(args.fov)
     summary = CONVERTERS[args.format](args.src, args.out, args.storage, **options)
     print(f"wrote {args.out}/bag, params.yaml, ATTRIBUTION.md: "
           + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}"

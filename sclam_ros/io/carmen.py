@@ -50,7 +50,10 @@ NOMINAL_RADIUS = 0.1  # m
 NOMINAL_BASE = 0.4  # m
 JOINTS = ("left_wheel_joint", "right_wheel_joint")
 FLASER_MAX_RANGE = 50.0  # m: the SICK LMS in the benchmark logs reports no return as 50 m
-FLASER_FOV = math.pi  # rad, −90° to +90° inclusive
+# rad, −90° to +90° inclusive: a FLASER line states no field of view, and CARMEN's own
+# reader spreads its beams over this; a laser that spans less makes its scan matches turn
+# by more than it does (sclam convert carmen --fov, docs/real_data.md)
+FLASER_FOV = math.pi
 NO_RETURN_MARGIN = 0.01  # m: a reading within this of the maximum is "no return"
 
 
@@ -93,14 +96,14 @@ def _floats(tokens, where):
         raise CarmenError(f"{where}: a number was expected in {' '.join(tokens)[:80]!r}") from None
 
 
-def _flaser(tokens, where) -> LaserLine:
+def _flaser(tokens, where, fov) -> LaserLine:
     n = int(tokens[1])
     values = _floats(tokens[2:2 + n + 6], where)
     if len(values) != n + 6 or len(tokens) < 2 + n + 7:
         raise CarmenError(f"{where}: FLASER line shorter than its {n} readings say")
     return LaserLine(
         stamp=float(tokens[2 + n + 6]), ranges=np.asarray(values[:n]),
-        angle_min=-FLASER_FOV / 2, angle_increment=FLASER_FOV / max(n - 1, 1),
+        angle_min=-fov / 2, angle_increment=fov / max(n - 1, 1),
         range_max=FLASER_MAX_RANGE,
         laser_pose=np.asarray(values[n:n + 3]), robot_pose=np.asarray(values[n + 3:n + 6]))
 
@@ -120,8 +123,9 @@ def _robotlaser(tokens, where) -> LaserLine:
         laser_pose=np.asarray(poses[:3]), robot_pose=np.asarray(poses[3:]))
 
 
-def read_carmen(path) -> CarmenLog:
-    """Parse the lines this converter uses; others are counted in ``skipped``."""
+def read_carmen(path, flaser_fov: float = FLASER_FOV) -> CarmenLog:
+    """Parse the lines this converter uses; others are counted in ``skipped``.
+    flaser_fov (rad): the span of an FLASER line's beams, first to last."""
     path = Path(path)
     log = CarmenLog()
     try:
@@ -139,7 +143,7 @@ def read_carmen(path) -> CarmenLog:
                         log.odometry_poses.append(values[:3])
                         log.odometry_stamps.append(values[3])
                     elif name == "FLASER":
-                        log.lasers.append(_flaser(tokens, where))
+                        log.lasers.append(_flaser(tokens, where, flaser_fov))
                     elif name == "ROBOTLASER1":
                         log.lasers.append(_robotlaser(tokens, where))
                     elif name == "PARAM" and len(tokens) >= 3:

@@ -196,13 +196,15 @@ CARMEN = Source(
 
 
 def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_RADIUS,
-                   base: float = carmen.NOMINAL_BASE, scan_delay: float = 0.0) -> dict:
+                   base: float = carmen.NOMINAL_BASE, scan_delay: float = 0.0,
+                   fov: float = carmen.FLASER_FOV) -> dict:
     """/joint_states (wheel angles in rad implied from the odometry poses), /scan, and the
     log's odometry as /odom (nav_msgs/Odometry, for comparison only). ``scan_delay`` (s):
     each scan was taken this long before its line's ipc_timestamp; it is stamped that much
-    earlier and recorded at the line's time, as a late message is."""
+    earlier and recorded at the line's time, as a late message is. ``fov`` (rad): the span
+    of the FLASER lines' beams, which the log does not state."""
     try:
-        log = carmen.read_carmen(src)
+        log = carmen.read_carmen(src, flaser_fov=fov)
     except carmen.CarmenError as exc:
         raise ConvertError(str(exc)) from None
     stamps, poses, odometry_source = carmen.odometry_track(log)
@@ -232,6 +234,8 @@ def convert_carmen(src, out, storage="sqlite3", radius: float = carmen.NOMINAL_R
         notes += f"; {backwards} odometry stamps out of order, sorted"
     if scan_delay:
         notes += f"; scans stamped {scan_delay * 1e3:.0f} ms before their log line"
+    if fov != carmen.FLASER_FOV:
+        notes += f"; FLASER beams spread over {math.degrees(fov):.2f}°"
     if log.skipped:
         notes += "; lines not converted: " + ", ".join(
             f"{name} {count}" for name, count in sorted(log.skipped.items()))
