@@ -86,6 +86,10 @@ class SolverConfig:
     relative_tolerance: float = 1e-10
     # LM's starting damping λ: small, the start (chained scan matches) is near the optimum
     initial_lambda: float = 1e-5
+    # smallest λ after accepted steps: λ·diag(H) must fall below H's smallest curvature
+    # along the calibration, or a long chain of poses without loop closure (condition
+    # numbers of 1e15) is damped along its flattest direction and LM creeps
+    min_lambda: float = 1e-20
     # re-weighting rounds of variance component estimation
     variance_rounds: int = 6
     # |χ²/r − 1| of every group below which the scales have settled
@@ -109,7 +113,7 @@ class SolverConfig:
         """levenberg_marquardt's keyword arguments."""
         return {"max_iterations": self.max_iterations,
                 "relative_tolerance": self.relative_tolerance,
-                "initial_lambda": self.initial_lambda}
+                "initial_lambda": self.initial_lambda, "min_lambda": self.min_lambda}
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,7 @@ def levenberg_marquardt(
     relative_tolerance: float = SolverConfig.relative_tolerance,
     initial_lambda: float = SolverConfig.initial_lambda,
     progress=None,
+    min_lambda: float = SolverConfig.min_lambda,
 ) -> SolverResult:
     """Minimise Σ ρ(‖L e‖²) with Marquardt's diagonal damping and an adaptive λ; the
     defaults are SolverConfig's (SolverConfig.lm_options gives a config's)."""
@@ -92,7 +93,7 @@ def levenberg_marquardt(
         new_cost = candidate_system.cost
         improvement = (cost - new_cost) / max(cost, 1e-300)
         values, system, cost = candidate, candidate_system, new_cost
-        lam = max(lam / 10.0, 1e-12)
+        lam = max(lam / 10.0, min_lambda)
         history.append(cost)
         if progress is not None:
             progress(iteration, cost)
