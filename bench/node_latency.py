@@ -19,7 +19,10 @@ Matched by stamp:
   - max backlog: the largest `calibrator_backlog` in /diagnostics (1 Hz) from 5 s after the
     start: messages handed to the calibrator process and not yet taken. Near 0 means it keeps
     up and never queues work.
-"answered" counts JointStates that got their odometry. The machine is named above the table.
+"answered" counts JointStates whose odometry reached the listener; "node received / published"
+is the node's own count (/diagnostics: joint_states_received, odom_published; odom_unanswered_*
+says why for the rest), which tells a message the node never got or refused from one DDS lost
+on the way out. The machine is named above the table.
 
 Run: .venv/bin/python bench/node_latency.py [--duration 90] [--rates 10 40]
 """
@@ -43,6 +46,7 @@ os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 200))
 
 JOINT_QUEUE_DEPTH = 200  # as sclam_node's JointState subscription
+LISTEN_TAIL_S = 5.0  # the listener listens this long after the last message sent
 
 
 def _stamp_key(stamp) -> int:
@@ -73,7 +77,9 @@ def relay_main() -> None:
 
 
 def listen_main(out: str, seconds: float) -> None:
-    """Arrival wall times of the node's and the relay's outputs, by stamp, to `out` (JSON)."""
+    """Arrival wall times of the node's and the relay's outputs, by stamp, to `out` (JSON):
+    until `seconds` have passed, or LISTEN_TAIL_S after the driver has created `out`.done
+    (its last message sent), so that a slow start never cuts off the last answers."""
     import rclpy
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
@@ -83,6 +89,7 @@ def listen_main(out: str, seconds: float) -> None:
     node = rclpy.create_node("latency_listener")
     arrivals = {"/sclam/odom": {}, "/relay/odom": {}, "/sclam/laser_pose": {}}
     backlog = []  # (arrival, calibrator_backlog) of every /diagnostics message (1 Hz)
+    last_values = {}  # the node's newest /diagnostics key/values: its counts by reason
 
     def note(topic):
         def callback(msg):
@@ -99,16 +106,21 @@ def listen_main(out: str, seconds: float) -> None:
 
     def diagnostics(msg):
         for status in msg.status:
-            for kv in status.values:
-                if kv.key == "calibrator_backlog":
-                    backlog.append((time.time(), int(kv.value)))
+            values = {kv.key: kv.value for kv in status.values}
+            if "calibrator_backlog" in values:
+                backlog.append((time.time(), int(values["calibrator_backlog"])))
+                last_values.clear()
+                last_values.update(values)
 
     node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics, 10)
     end = time.monotonic() + seconds
+    done = Path(out + ".done")
     while time.monotonic() < end:
         rclpy.spin_once(node, timeout_sec=0.1)
+        if done.exists():
+            end = min(end, done.stat().st_mtime - time.time() + time.monotonic() + LISTEN_TAIL_S)
     result = {t: list(a.items()) for t, a in arrivals.items()}
-    Path(out).write_text(json.dumps({**result, "backlog": backlog}))
+    Path(out).write_text(json.dumps({**result, "backlog": backlog, "diagnostics": last_values}))
 
 
 def machine() -> str:
@@ -170,7 +182,7 @@ def run_row(bag, seconds, workdir):
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
         subprocess.Popen(me + ["relay"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
     ]
-    listen_for = seconds + 25.0  # start-up and the tail included
+    listen_for = seconds + 60.0  # at most: start-up and the tail included
     listener = subprocess.Popen(me + ["listen", str(arrivals_file), str(listen_for)])
     rclpy.init()
     node = rclpy.create_node("latency_driver")
@@ -194,6 +206,7 @@ def run_row(bag, seconds, workdir):
             msg.header.stamp = Time(nanoseconds=int(due * 1e9)).to_msg()
             published[topic][_stamp_key(msg.header.stamp)] = time.time()
             (joints if topic == params.joint_states_topic else scans).publish(msg)
+        Path(f"{arrivals_file}.done").touch()
         listener.wait(timeout=listen_for + 30.0)
     finally:
         node.destroy_node()
@@ -204,12 +217,13 @@ def run_row(bag, seconds, workdir):
             child.wait(timeout=30)
     raw = json.loads(arrivals_file.read_text())
     backlog = raw.pop("backlog")
+    diagnostics = raw.pop("diagnostics")
     arrivals = {t: {int(k): v for k, v in a} for t, a in raw.items()}
     # Steady state: from 5 s after the first message (the calibrator process may still be
     # importing its libraries when the first messages arrive; they wait in its inbox).
     start = min(published[params.joint_states_topic].values()) + 5.0
     backlog = [b for t, b in backlog if t > start]
-    return published, arrivals, backlog, params
+    return published, arrivals, backlog, diagnostics, params
 
 
 def latencies(sent: dict, received: dict, tolerance_ns: int = 0) -> np.ndarray:
@@ -252,14 +266,26 @@ def main():
         bag = workdir / f"s{scan_rate:g}_b{beams}"
         simulate(bag, robot="powerbot", duration=args.duration + 5.0, seed=4, scan_rate=scan_rate,
                  beams=beams, encoder_rate=100.0, overwrite=True)
-        published, arrivals, backlog, params = run_row(bag, args.duration, workdir)
+        published, arrivals, backlog, diagnostics, params = run_row(bag, args.duration, workdir)
+        counts = {k: v for k, v in diagnostics.items()
+                  if k.startswith(("rejected_", "odom_")) or k.endswith("_received")}
+        print(f"{scan_rate:g} Hz: the node's last /diagnostics counts: {counts}", flush=True)
         joint_sent = published[params.joint_states_topic]
+        # Which JointStates (in the order sent) got no ~/odom to the listener: at the
+        # start or the end points at the bench's windows, scattered at the node or DDS.
+        for topic in ("/sclam/odom", "/relay/odom"):
+            missing = [i for i, key in enumerate(sorted(joint_sent)) if key not in arrivals[topic]]
+            if missing:
+                print(f"{scan_rate:g} Hz: {len(missing)} JointStates without {topic}, "
+                      f"at #{missing[:20]} of {len(joint_sent)}", flush=True)
         node = latencies(joint_sent, arrivals["/sclam/odom"])
         relay = latencies(joint_sent, arrivals["/relay/odom"])
         estimate = latencies(published[params.scan_topic], arrivals["/sclam/laser_pose"], 1000)
         period = 1e3 / scan_rate
         rows.append([f"{scan_rate:g} Hz / {beams}", len(joint_sent),
                      f"{len(node)} / {len(relay)}",
+                     f"{diagnostics.get('joint_states_received', '?')} / "
+                     f"{diagnostics.get('odom_published', '?')}",
                      ms(relay, 50), ms(node, 50), f"{1e3 * (np.percentile(node, 50) - np.percentile(relay, 50)):+.1f}",
                      ms(relay, 99), ms(node, 99), f"{1e3 * (np.percentile(node, 99) - np.percentile(relay, 99)):+.1f}",
                      ms(node, 100), f"{len(estimate) / args.duration:.1f}", ms(estimate, 50),
@@ -268,6 +294,7 @@ def main():
     print(f"\nmachine: {machine()}")
     print(f"live over DDS (Fast DDS), {args.duration:.0f} s per row, 100 Hz encoders; ms")
     print(table(rows, ["laser", "JointStates", "answered node / relay",
+                       "node received / published",
                        "relay p50", "node p50", "Δ p50", "relay p99", "node p99", "Δ p99",
                        "node max", "estimates/s", "scan→estimate p50", "p99", "scan period",
                        "max backlog"]))

@@ -59,6 +59,16 @@ def test_vectorised_equals_single():
         assert np.allclose(stacked[i], kinematics.jacobian_k(dphi[i], K))
 
 
+@pytest.mark.parametrize("dphi", [(1.0, 1.0), (0.5, 2.0), (-1.0, 1.0), (3.0, -0.2),
+                                  (1e-5, 1.2e-5), (0.0, 0.0)])
+def test_step_is_forward_jacobian_and_covariance_of_one_increment(dphi):
+    motion, j_k, cov = kinematics.step(dphi, K, 0.02, lateral_noise=0.01, path_variance=1e-6)
+    np.testing.assert_allclose(motion, kinematics.forward(dphi, K), rtol=1e-14, atol=1e-17)
+    np.testing.assert_allclose(j_k, kinematics.jacobian_k(dphi, K), rtol=1e-14, atol=1e-17)
+    expected = kinematics.motion_covariance(dphi, K, 0.02, lateral_noise=0.01, path_variance=1e-6)
+    np.testing.assert_allclose(cov, expected, rtol=1e-12, atol=1e-30)
+
+
 def test_motion_covariance_positive_definite_even_standing_still():
     cov = kinematics.motion_covariance(np.array([[0.0, 0.0], [1.0, 1.2]]), K, 0.02)
     assert np.all(np.linalg.eigvalsh(cov) > 0)

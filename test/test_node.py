@@ -412,8 +412,8 @@ def test_console_script_with_params_file(graph, recording, tmp_path):
         encoders = [m for t, m in recording["messages"] if t == params.joint_states_topic][:100]
         for msg in encoders:
             pub.publish(msg)
-        # The node publishes odometry from the second sample on.
-        wait_for(lambda: len(graph.messages("/sclam/odom")) >= 99, what="odometry")
+        # Every sample is answered, the first one too.
+        wait_for(lambda: len(graph.messages("/sclam/odom")) >= 100, what="odometry")
         odom = graph.messages("/sclam/odom")[-1]
         assert odom.header.frame_id == "odom" and odom.child_frame_id == "base_link"
         wait_diagnostics(graph, lambda v: v.get("joint_states_received") == "100", "diagnostics")
@@ -519,3 +519,40 @@ def test_publish_tf_without_tf2_msgs_says_so_once(graph, monkeypatch):
 def test_publish_tf_is_off_by_default(graph):
     node = graph.add(SclamNode(context=graph.context))
     assert node.get_parameter("publish_tf").value is False and node.tf is None
+
+
+def _stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def test_every_accepted_encoder_message_gets_one_odometry_answer(graph, recording):
+    """~/odom answers each JointState the encoder stream accepts, the first one included,
+    exactly once; a refused one (repeated stamp, stamp going backwards, wheel joints
+    missing) gets no answer and is counted by reason in /diagnostics."""
+    params = recording["params"]
+    node = start_node(graph, params)
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    graph.subscribe(Odometry, "/sclam/odom", 1000)
+    feeder = Feeder(graph, node, params)
+    encoders = [m for t, m in recording["messages"] if t == params.joint_states_topic][:40]
+    wrong_names = JointState(name=["a", "b"], position=[1.0, 2.0])
+    wrong_names.header.stamp = encoders[30].header.stamp
+    refused = [encoders[19], encoders[25], wrong_names]  # repeated, backwards, no wheels
+    sent = encoders[:20] + [encoders[19]] + encoders[20:30] + [encoders[25], wrong_names] \
+        + encoders[30:]
+    for msg in sent:
+        feeder.publish(params.joint_states_topic, msg)
+
+    values = wait_diagnostics(
+        graph, lambda v: v.get("joint_states_received") == str(len(sent))
+        and v.get("odom_published") == str(len(encoders)), "diagnostics covering every answer")
+    assert values["odom_unanswered_encoder_duplicate_stamp"] == "1"
+    assert values["odom_unanswered_encoder_non_monotonic"] == "1"
+    assert values["odom_unanswered_joint_state_missing_joint"] == "1"
+    unanswered = sum(int(v) for k, v in values.items() if k.startswith("odom_unanswered_"))
+    assert int(values["odom_published"]) + unanswered == len(sent) == len(encoders) + len(refused)
+    wait_for(lambda: len(graph.messages("/sclam/odom")) >= len(encoders), what="every answer")
+    answers = sorted(_stamp_ns(m) for m in graph.messages("/sclam/odom"))
+    assert answers == sorted(_stamp_ns(m) for m in encoders)  # each exactly once
+    first = min(graph.messages("/sclam/odom"), key=_stamp_ns)
+    assert (first.pose.pose.position.x, first.twist.twist.linear.x) == (0.0, 0.0)

@@ -69,8 +69,19 @@ class StatusConfig:
 
 
 @dataclass(frozen=True)
+class ProcessConfig:
+    """How the calibrator's child process runs beside the node (process.py)."""
+
+    # added to the child's nice value (0: the node's priority): ~/odom answers every
+    # encoder message, an estimate comes once a second, so where the CPU is contended
+    # the node's callbacks go first (docs/decisions/runtime.md).
+    niceness: int = 5
+
+
+@dataclass(frozen=True)
 class OnlineConfig:
     window: PoseWindowConfig = field(default_factory=PoseWindowConfig)
     change: ChangeTestConfig = field(default_factory=ChangeTestConfig)
     solve: WindowSolveConfig = field(default_factory=WindowSolveConfig)
     status: StatusConfig = field(default_factory=StatusConfig)
+    process: ProcessConfig = field(default_factory=ProcessConfig)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import queue
 import threading
 import time
@@ -52,6 +53,8 @@ def _serve(params, config, inbox, outbox) -> None:
     # A daemon child is ended by its parent's normal exit only; a node that is killed would
     # leave it running, waiting for input forever.
     parent = multiprocessing.parent_process()
+    if config.process.niceness:
+        os.nice(config.process.niceness)
     rejections = Rejections()
     calibrator = OnlineCalibrator(params, rejections, inline_solve=False, config=config)
     lock = threading.Lock()

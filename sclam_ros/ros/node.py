@@ -10,8 +10,9 @@ Subscribes
   ``joint_states_topic`` (sensor_msgs/JointState, reliable) and ``scan_topic``
   (sensor_msgs/LaserScan, sensor-data QoS).
 Publishes (``~`` is the node name, ``/sclam`` by default)
-  ``~/odom``             nav_msgs/Odometry ``odom_frame`` → ``base_frame``, integrated at the
-                         encoder rate with the current calibration; the pose covariance holds
+  ``~/odom``             nav_msgs/Odometry ``odom_frame`` → ``base_frame``, one per JointState
+                         accepted (the first at the origin with zero twist), with its stamp,
+                         integrated with the current calibration; the pose covariance holds
                          the wheel noise accumulated along the path plus the calibration's own
                          uncertainty propagated through the whole path. A parameter the
                          data has not observed is integrated at its nominal value.
@@ -37,7 +38,11 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
                          unobserved one is at nominal, ``<name>_observable`` false), rejected
                          input by reason, last solve converged (WARN after 3 unconverged in a
                          row), scan matches confirmed of those made (WARN that the σ may be
-                         too small where a noisy laser has most unconfirmed, as outdoors).
+                         too small where a noisy laser has most unconfirmed, as outdoors),
+                         ``odom_published`` and ``odom_unanswered_<reason>``: every JointState
+                         is answered on ~/odom or counted there by why not (not the two
+                         wheel joints, a stamp repeated or going backwards), so the two add
+                         up to ``joint_states_received``.
                          A value not known yet (no estimate, no change test) is absent: never "nan".
   ``~/laser_pose`` and ``~/wheel_parameters`` are transient-local: a late subscriber gets the last one.
 Services (std_srvs/Trigger)
@@ -123,11 +128,12 @@ def _yaw_quaternion(q, yaw):
 
 
 def _covariance36(cov3) -> list:
-    """A 3×3 (x, y, yaw) covariance in the x, y, yaw slots of a row-major 6×6."""
-    out = np.zeros((6, 6))
-    idx = [0, 1, 5]
-    out[np.ix_(idx, idx)] = cov3
-    return out.reshape(-1).tolist()
+    """A 3×3 (x, y, yaw) covariance in the x, y, yaw slots of a row-major 6×6 (in plain
+    Python: ~/odom builds two per encoder message)."""
+    out = [0.0] * 36
+    for row, values in zip((0, 6, 30), np.asarray(cov3, float).tolist()):
+        out[row], out[row + 1], out[row + 5] = values
+    return out
 
 
 # Sensor-data QoS (best effort: matches every laser driver) with a history of about a
@@ -151,7 +157,11 @@ class SclamNode(Node):
         self.calibration_file = self.get_parameter("calibration_file").value
         self.laser_frame = None  # header.frame_id of the scans, once one came
         self.rejections = Rejections()  # message conversion; the calibrator counts its own
-        self.odometry = OdometryIntegrator(self.params)
+        # JointStates ~/odom did not answer, by reason: with odom_published they add up to
+        # joint_states_received.
+        self.unanswered = Rejections()
+        self.odom_published = 0
+        self.odometry = OdometryIntegrator(self.params, rejections=self.unanswered)
         self.received = {"joint_states": 0, "scan": 0}
         self.estimates = 0
 
@@ -265,12 +275,16 @@ class SclamNode(Node):
         try:
             stamp, left, right = joint_state_to_raw(msg, self.params)
         except MessageRejected as exc:
+            self.unanswered.add(exc.reason)
             self._reject(exc.reason, exc.detail)
             return
+        published = self.odom_published
         try:
             self._publish_odometry(msg, stamp, left, right)
             self.calibrator.add_encoder(stamp, left, right)
         except Exception as exc:  # never let one message take the node down
+            if self.odom_published == published:
+                self.unanswered.add("internal_error")
             self._reject("internal_error", f"{type(exc).__name__}: {exc}")
 
     def _on_scan(self, msg: LaserScan):
@@ -299,7 +313,7 @@ class SclamNode(Node):
     def _publish_odometry(self, msg, stamp, left, right):
         k, k_cov = self._odometry_calibration()
         if not self.odometry.add(stamp, left, right, k, k_cov):
-            return
+            return  # refused: counted in self.unanswered by the integrator's stream
         odom = Odometry()
         odom.header.stamp = msg.header.stamp
         odom.header.frame_id = self.params.odom_frame
@@ -315,6 +329,7 @@ class SclamNode(Node):
         odom.twist.twist.angular.z = float(twist[2])
         odom.twist.covariance = _covariance36(self.odometry.twist_cov)
         self.odom_pub.publish(odom)
+        self.odom_published += 1
         if self.tf is not None:
             self.tf.odometry(odom.header.stamp, odom.header.frame_id, odom.child_frame_id, pose)
 
@@ -353,6 +368,9 @@ class SclamNode(Node):
         # Messages handed to the calibrator process and not yet taken: stays near 0 when it
         # keeps up with the sensors.
         values["calibrator_backlog"] = self.calibrator.backlog
+        values["odom_published"] = self.odom_published
+        for reason, n in sorted(self.unanswered.counts.items()):
+            values[f"odom_unanswered_{reason}"] = n
         level = DiagnosticStatus.OK if level == OK else DiagnosticStatus.WARN
         if not self.calibrator.alive:
             level = DiagnosticStatus.ERROR
