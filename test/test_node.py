@@ -556,3 +556,47 @@ def test_every_accepted_encoder_message_gets_one_odometry_answer(graph, recordin
     assert answers == sorted(_stamp_ns(m) for m in encoders)  # each exactly once
     first = min(graph.messages("/sclam/odom"), key=_stamp_ns)
     assert (first.pose.pose.position.x, first.twist.twist.linear.x) == (0.0, 0.0)
+
+
+def test_node_reads_the_base_odometry_instead_of_joint_states(graph, tmp_path):
+    """With odometry_topic set the node reads the base's nav_msgs/Odometry instead of
+    JointState: each message is answered on ~/odom, which, integrated with the nominal
+    values the odometry was made with (no estimate yet), retraces the input's path from the
+    origin; an Odometry of another child frame is refused and counted by its reason."""
+    from sclam_ros.core import se2
+    from sclam_ros.io.messages import quaternion_yaw
+    from sclam_ros.sim import simulate
+
+    out = tmp_path / "odom_only"
+    simulate(out, robot="powerbot", duration=3.0, seed=3, wheels="odom")
+    params = SclamParams.from_yaml(out / "params.yaml")
+    assert params.odometry_topic
+    odometry_class = rclpy_class(topic_info(out)[params.odometry_topic][0])
+    inputs = [rosbags_to_rclpy(m, odometry_class)
+              for _, _, m in iter_messages(out, [params.odometry_topic])][:40]
+    node = start_node(graph, params)
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    graph.subscribe(Odometry, "/sclam/odom", 1000)
+    pub = graph.tester.create_publisher(Odometry, params.odometry_topic, 200)
+    wait_for(lambda: pub.get_subscription_count() > 0, what="node subscription")
+    other_frame = Odometry(child_frame_id="imu_link", pose=inputs[-1].pose)
+    other_frame.header.stamp.sec = inputs[-1].header.stamp.sec + 1
+    for n, msg in enumerate(inputs + [other_frame], 1):
+        pub.publish(msg)
+        wait_for(lambda n=n: node.received["odometry"] >= n, what="node to receive /odom")
+
+    values = wait_diagnostics(
+        graph, lambda v: v.get("odometry_received") == str(len(inputs) + 1)
+        and v.get("odom_published") == str(len(inputs)), "diagnostics covering every answer")
+    assert values["odom_unanswered_odometry_child_frame"] == "1"
+    wait_for(lambda: len(graph.messages("/sclam/odom")) >= len(inputs), what="every answer")
+    answers = sorted(graph.messages("/sclam/odom"), key=_stamp_ns)
+    assert [_stamp_ns(m) for m in answers] == [_stamp_ns(m) for m in inputs]
+
+    def pose(msg):
+        p = msg.pose.pose
+        return np.array([p.position.x, p.position.y, quaternion_yaw(p.orientation)])
+
+    start = pose(inputs[0])
+    for given, answer in zip(inputs, answers):
+        np.testing.assert_allclose(pose(answer), se2.between(pose(given), start), atol=1e-9)

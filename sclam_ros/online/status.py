@@ -42,7 +42,8 @@ def diagnostic_status(status, params, received, rejections, config: OnlineConfig
         "pose_window_length_m": f"{cal.pose_window_length:.3f}",
         "radius_changes_detected": cal.radius_changes,
         "solves": cal.solves,
-        "joint_states_received": received["joint_states"],
+        # the wheel input's messages: JointState, or the base's Odometry (odometry_topic)
+        **{f"{name}_received": n for name, n in received.items() if name != "scan"},
         "scans_received": received["scan"],
         "scans_skipped_above_max_rate": cal.frontend.skipped_scans,
         "solves_unconverged_in_a_row": cal.unconverged_in_a_row,

@@ -7,8 +7,9 @@ calibrator knows. The calibrator (scan registration, window solves) runs in a ch
 messages over, so odometry never waits for a registration or a solve.
 
 Subscribes
-  ``joint_states_topic`` (sensor_msgs/JointState, reliable) and ``scan_topic``
-  (sensor_msgs/LaserScan, sensor-data QoS).
+  ``joint_states_topic`` (sensor_msgs/JointState, reliable), or ``odometry_topic``
+  (nav_msgs/Odometry, the base's wheel odometry, turned back into wheel rotations with the
+  nominal values) when that is set, and ``scan_topic`` (sensor_msgs/LaserScan, sensor-data QoS).
 Publishes (``~`` is the node name, ``/sclam`` by default)
   ``~/odom``             nav_msgs/Odometry ``odom_frame`` → ``base_frame``, one per JointState
                          accepted (the first at the origin with zero twist), with its stamp,
@@ -42,7 +43,8 @@ Publishes (``~`` is the node name, ``/sclam`` by default)
                          ``odom_published`` and ``odom_unanswered_<reason>``: every JointState
                          is answered on ~/odom or counted there by why not (not the two
                          wheel joints, a stamp repeated or going backwards), so the two add
-                         up to ``joint_states_received``.
+                         up to ``joint_states_received`` (``odometry_received`` with
+                         ``odometry_topic``).
                          A value not known yet (no estimate, no change test) is absent: never "nan".
   ``~/laser_pose`` and ``~/wheel_parameters`` are transient-local: a late subscriber gets the last one.
 Services (std_srvs/Trigger)
@@ -102,7 +104,9 @@ from sclam_ros.io.messages import (
     check_scan,
     joint_state_to_raw,
     laser_scan_to_scan,
+    odometry_to_pose,
 )
+from sclam_ros.frontend.odometry_wheels import WheelsFromOdometry
 from sclam_ros.online.odometry import OdometryIntegrator
 from sclam_ros.ros.tf import TfBroadcaster
 from sclam_ros.online.process import CalibratorProcess
@@ -162,7 +166,11 @@ class SclamNode(Node):
         self.unanswered = Rejections()
         self.odom_published = 0
         self.odometry = OdometryIntegrator(self.params, rejections=self.unanswered)
-        self.received = {"joint_states": 0, "scan": 0}
+        # The wheel input: the base's odometry turned back into wheel rotations, or JointState.
+        self.wheel_input = "odometry" if self.params.odometry_topic else "joint_states"
+        self.wheels_from_odometry = (WheelsFromOdometry(self.params)
+                                     if self.params.odometry_topic else None)
+        self.received = {self.wheel_input: 0, "scan": 0}
         self.estimates = 0
 
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -173,8 +181,17 @@ class SclamNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.tf = (TfBroadcaster.create(self) if self.get_parameter("publish_tf").value
                    else None)
-        self.create_subscription(JointState, self.params.joint_states_topic,
-                                 self._on_joint_state, 200)
+        if self.wheels_from_odometry is not None:
+            self.create_subscription(Odometry, self.params.odometry_topic,
+                                     self._on_wheel_odometry, 200)
+            self.get_logger().info(
+                f"wheel input: {self.params.odometry_topic} (nav_msgs/Odometry), turned back "
+                "into wheel rotations with the nominal radii and wheel base, which must be "
+                "those the odometry was computed with; a heading fused from an IMU is not the "
+                "wheels' (docs/robot_inputs.md)")
+        else:
+            self.create_subscription(JointState, self.params.joint_states_topic,
+                                     self._on_joint_state, 200)
         self.create_subscription(LaserScan, self.params.scan_topic, self._on_scan, SCAN_QOS)
         # Last: its reader thread publishes through the publishers made above.
         self.calibrator = CalibratorProcess(self.params, self._publish_estimate,
@@ -271,9 +288,20 @@ class SclamNode(Node):
                                throttle_duration_sec=WARN_THROTTLE_S)
 
     def _on_joint_state(self, msg: JointState):
-        self.received["joint_states"] += 1
+        self._on_wheels(msg, lambda: joint_state_to_raw(msg, self.params))
+
+    def _on_wheel_odometry(self, msg: Odometry):
+        def wheel_angles():
+            stamp, pose, yaw_rate = odometry_to_pose(msg, self.params)
+            return (stamp, *self.wheels_from_odometry.add(stamp, pose, yaw_rate))
+        self._on_wheels(msg, wheel_angles)
+
+    def _on_wheels(self, msg, wheel_angles):
+        """One wheel-input message: ``wheel_angles()`` gives (stamp, left, right) or raises
+        MessageRejected; answered on ~/odom and handed to the calibrator."""
+        self.received[self.wheel_input] += 1
         try:
-            stamp, left, right = joint_state_to_raw(msg, self.params)
+            stamp, left, right = wheel_angles()
         except MessageRejected as exc:
             self.unanswered.add(exc.reason)
             self._reject(exc.reason, exc.detail)
