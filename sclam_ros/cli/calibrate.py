@@ -322,8 +322,8 @@ def _explain_skid_steer(params, wheel_sides) -> None:
         log.warning("skid-steer with the nominal wheel_base (%.3f m) not wider than its "
                     "wheel_separation (%.3f m): the effective wheel base is wider (1.2-2x the "
                     "track); started at the track, the scan matcher's odometry guesses fail in "
-                    "turns and the wheel base may be left undetermined: start from 1.5x "
-                    "(wheel_base: %.3f)", params.wheel_base, params.wheel_separation,
+                    "turns and the wheel base may be left undetermined (2 of 3 simulated drives "
+                    "at 2x, docs/robot_inputs.md#skid-steer): start from 1.5x (wheel_base: %.3f)", params.wheel_base, params.wheel_separation,
                     1.5 * params.wheel_separation)
     for side, values in (wheel_sides or {}).items():
         if values["rms_percent"] is not None:
