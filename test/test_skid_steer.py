@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -194,3 +195,29 @@ def test_wheel_joints_not_in_the_recording_are_a_one_line_error(skid_bag, tmp_pa
     assert rc == 2
     line = [x for x in err.splitlines() if "error:" in x]
     assert len(line) == 1 and all(n in line[0] for n in needles), err
+
+
+def test_the_node_reads_the_skid_steer_parameters_file():
+    """sclam_node declares the joint lists as ROS 2 parameters and reads them from the
+    example parameters file, as `--ros-args --params-file` passes it."""
+    import os
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from sclam_ros.ros.node import SclamNode
+
+    path = Path(__file__).parents[1] / "launch_configs" / "config" / "skid_steer.yaml"
+    raw = yaml.safe_load(path.read_text())["sclam"]["ros__parameters"]
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=100 + os.getpid() % 100)
+    try:
+        node = SclamNode(context=context, parameter_overrides=[
+            Parameter(k, value=v) for k, v in raw.items()])
+        try:
+            assert node.params == SclamParams.from_yaml(path)
+            assert node.params.wheel_joints() == ((FL, RL), (FR, RR))
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
