@@ -312,6 +312,26 @@ def _explain_dilution(correction) -> None:
                     "determines them weakly, and they may be off by that much", moves)
 
 
+def _explain_skid_steer(params, wheel_sides) -> None:
+    """A skid-steer's per-side wheel disagreement (frontend/wheel_sides.py; above its
+    threshold it was warned about while reading), and a nominal wheel base that is the
+    geometric track."""
+    if params.wheels_per_side < 2:
+        return
+    if params.wheel_separation and params.wheel_base <= params.wheel_separation:
+        log.warning("skid-steer with the nominal wheel_base (%.3f m) not wider than its "
+                    "wheel_separation (%.3f m): the effective wheel base is wider (1.2-2x the "
+                    "track); started at the track, the scan matcher's odometry guesses fail in "
+                    "turns and the wheel base may be left undetermined (2 of 3 simulated drives "
+                    "at 2x, docs/robot_inputs.md#skid-steer): start from 1.5x (wheel_base: %.3f)", params.wheel_base, params.wheel_separation,
+                    1.5 * params.wheel_separation)
+    for side, values in (wheel_sides or {}).items():
+        if values["rms_percent"] is not None:
+            print(f"{side} wheels ({', '.join(values['joints'])}): they disagree by "
+                  f"{values['rms_percent']:.2f} % RMS of their rotation "
+                  f"({values['stretches']} stretches, {values['over']} over the warning level)")
+
+
 def _inferred(args):
     """The parameters inferred from the recording (io/zero_config.py), printed and written
     as a parameters file the user can edit and pass next time."""
@@ -348,6 +368,7 @@ def _run(args, warnings) -> int:
     if args.track:
         return _run_track(args, params, truth)
     recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
+    _explain_skid_steer(params, recording.wheel_sides)
     report = recording.frontend.report() if recording.frontend is not None else None
     _warn_about_input(recording.rejections, report)
     if not args.quiet:
@@ -373,6 +394,10 @@ def _run(args, warnings) -> int:
         out["messages"] = recording.messages
         out["frames"] = {"base": params.base_frame,
                          "laser": scan_frame_id(args.bag, params.scan_topic)}  # for sclam export
+        if params.wheels_per_side > 1:  # a skid-steer's, for sclam export and the reader
+            out["wheels_per_side"] = params.wheels_per_side
+            out["wheel_separation"] = params.wheel_separation or None  # geometric
+            out["wheel_sides"] = recording.wheel_sides
         atomic_write_text(args.json, json.dumps(out, indent=2) + "\n")
     if args.report:
         from sclam_ros.io.report import write_calibration_report

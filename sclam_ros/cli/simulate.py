@@ -26,7 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=300.0, help="seconds (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     parser.add_argument("--true", action="append", default=[], metavar="KEY=VALUE",
-                        help=f"override a true value (SI, radians); keys: {', '.join(CALIBRATION_KEYS)}")
+                        help=f"override a true value (SI, radians); keys: {', '.join(CALIBRATION_KEYS)} "
+                             "(a skid-steer's wheel_base: its geometric track)")
+    parser.add_argument("--track-widening", type=float, metavar="CHI",
+                        help="skid-steer (--robot skid): its sides turn about centres CHI times as "
+                             "far apart as its geometric track, the effective wheel base CHI times "
+                             "the track (default: the preset's, 1.5 for skid, 1 for the others)")
     parser.add_argument("--storage", choices=("sqlite3", "mcap"), default="sqlite3",
                         help="rosbag2 storage (default: %(default)s)")
     effects_help = "; ".join(
@@ -108,7 +113,7 @@ def run(args) -> int:
             beams=args.beams, encoder_rate=args.encoder_rate, range_noise=args.range_noise,
             effects=effects, progress=progress, overwrite=args.overwrite, scene=args.scene,
             motion=args.motion, wheels=args.wheels, description=args.robot_description,
-            joint_units=args.joint_units,
+            joint_units=args.joint_units, track_widening=args.track_widening,
             laser=dict(fov=math.radians(args.fov), range_max=args.range_max,
                        range_noise_per_m=args.range_noise_per_m, dropout=args.dropout,
                        mixed_pixels=args.mixed_pixels,

@@ -87,6 +87,14 @@ def _non_empty(name, value):
     return None
 
 
+def _joint_names(name, value):
+    if not all(isinstance(v, str) and v for v in value):
+        return f"{name} must be a list of non-empty joint names, got {list(value)!r}"
+    if len(set(value)) != len(value):
+        return f"{name} names a joint twice: {list(value)!r}"
+    return None
+
+
 def _param(default, doc, check=None, unit=""):
     return field(default=default, metadata={"doc": doc, "check": check, "unit": unit})
 
@@ -107,6 +115,16 @@ class SclamParams:
     )
     left_wheel_joint: str = _param("left_wheel_joint", "JointState name of the left wheel", _non_empty)
     right_wheel_joint: str = _param("right_wheel_joint", "JointState name of the right wheel", _non_empty)
+    # A skid-steer's wheels, e.g. [front_left_wheel_joint, rear_left_wheel_joint]: a side's
+    # positions are averaged into one (io/messages.joint_state_to_raw), its wheel base is the
+    # effective one (docs/robot_inputs.md#skid-steer). Tuples: a dataclass default must be
+    # immutable, and rclpy declares them as arrays.
+    left_wheel_joints: tuple = _param(
+        (), "JointState names of the left side's wheels (skid-steer: two or more, averaged); "
+        "empty: left_wheel_joint", _joint_names)
+    right_wheel_joints: tuple = _param(
+        (), "JointState names of the right side's wheels (skid-steer: two or more, averaged); "
+        "empty: right_wheel_joint", _joint_names)
     ticks_per_revolution: float = _param(
         0.0,
         "encoder ticks per wheel revolution; JointState positions are cumulative ticks. "
@@ -131,6 +149,12 @@ class SclamParams:
     wheel_radius_right: float = _param(0.1, "right wheel radius", _within(MAX_WHEEL_RADIUS, True), "m")
     wheel_base: float = _param(
         0.5, "distance between the wheel contact points", _within(MAX_ROBOT_SIZE, True), "m")
+    wheel_separation: float = _param(
+        0.0,
+        "geometric distance between the left and right wheels (a skid-steer's track), for "
+        "diff_drive_controller's wheel_separation; wheel_base is then the effective one, wider "
+        "by the sideways slip in turns (exported as wheel_separation_multiplier). 0: wheel_base",
+        _non_negative, "m")
     laser_x: float = _param(0.0, "laser x on base_link", _within(MAX_ROBOT_SIZE), "m")
     laser_y: float = _param(0.0, "laser y on base_link", _within(MAX_ROBOT_SIZE), "m")
     laser_yaw: float = _param(0.0, "laser yaw on base_link", _within(2 * math.pi), "rad")
@@ -196,8 +220,16 @@ class SclamParams:
                 problem = check(f.name, value)
                 if problem:
                     problems.append(problem)
-        if self.left_wheel_joint == self.right_wheel_joint:
-            problems.append("left_wheel_joint and right_wheel_joint must differ")
+        left, right = self.wheel_joints()
+        if set(left) & set(right):
+            problems.append(f"a joint is named on both sides: {sorted(set(left) & set(right))}"
+                            " (left_wheel_joint(s), right_wheel_joint(s))")
+        if bool(self.left_wheel_joints) != bool(self.right_wheel_joints):
+            problems.append("set left_wheel_joints and right_wheel_joints together (or neither: "
+                            "left_wheel_joint, right_wheel_joint)")
+        elif len(left) != len(right):
+            problems.append(f"left_wheel_joints has {len(left)} joints, right_wheel_joints "
+                            f"{len(right)}: name as many wheels on each side")
         if self.odometry_topic and (self.ticks_per_revolution or self.encoder_wrap):
             # One meaning for each value: the implied wheel angles are radians that never wrap.
             problems.append("with odometry_topic set, ticks_per_revolution and encoder_wrap "
@@ -205,6 +237,16 @@ class SclamParams:
         if problems:
             raise ParamsError("invalid parameters:\n  " + "\n  ".join(problems))
         return self
+
+    def wheel_joints(self) -> tuple:
+        """((left joint names), (right joint names)): the skid-steer lists when set, else the
+        two-wheel joints."""
+        return (tuple(self.left_wheel_joints) or (self.left_wheel_joint,),
+                tuple(self.right_wheel_joints) or (self.right_wheel_joint,))
+
+    @property
+    def wheels_per_side(self) -> int:
+        return len(self.wheel_joints()[0])
 
     # --- calibration vector helpers --------------------------------------------------
     def calibration(self) -> dict:
@@ -237,14 +279,17 @@ class SclamParams:
                     if not isinstance(value, str):
                         raise TypeError
                     values[name] = value
+                elif isinstance(default, tuple):
+                    if isinstance(value, str) or not isinstance(value, (list, tuple)):
+                        raise TypeError
+                    values[name] = tuple(value)
                 else:
                     if isinstance(value, bool):
                         raise TypeError
                     values[name] = float(value)
             except (TypeError, ValueError):
-                raise ParamsError(
-                    f"{source}: {name} must be a {type(default).__name__}, got {value!r}"
-                ) from None
+                kind = "list" if isinstance(default, tuple) else type(default).__name__
+                raise ParamsError(f"{source}: {name} must be a {kind}, got {value!r}") from None
         params = cls(**values).validate()
         params.explicit_keys = frozenset(raw)
         return params
@@ -365,10 +410,14 @@ def check_parameter_value(name: str, value, default):
     if isinstance(default, str):
         if not isinstance(value, str):
             return f"{name} must be a string, got {type(value).__name__}"
+    elif isinstance(default, tuple):
+        if isinstance(value, str) or not isinstance(value, (list, tuple)):
+            return f"{name} must be a list of joint names, got {type(value).__name__}"
+        value = tuple(value)
     elif isinstance(value, bool) or not isinstance(value, (int, float)):
         return f"{name} must be a number, got {type(value).__name__} {value!r}"
     field_ = {f.name: f for f in fields(SclamParams)}.get(name)
     check = field_.metadata.get("check") if field_ is not None else None
     if check is not None:
-        return check(name, float(value) if not isinstance(default, str) else value)
+        return check(name, value if isinstance(default, (str, tuple)) else float(value))
     return None

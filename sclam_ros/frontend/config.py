@@ -186,6 +186,22 @@ class OdometryInputConfig:
 
 
 @dataclass(frozen=True)
+class WheelSidesConfig:
+    """A skid-steer's wheels of one side compared (wheel_sides.py)."""
+
+    # rad of the side's rotation over which the spread of its wheels is measured: long
+    # enough for the slip noise to average (the simulator's default slip noise spreads two
+    # wheels by 0.7 % RMS over 2π), short enough to catch a slipping stretch.
+    stretch: float = 2.0 * math.pi
+    # %: an RMS spread above this is warned about (4 to 5 times the simulator's default slip
+    # noise; a joint of the other side named spreads a side by about 100 % in every turn).
+    warn_percent: float = 3.0
+    # rad: a step of a wheel between two messages beyond this is a gap or a counter reset,
+    # not motion: the stretch restarts (EncoderStream cuts its segment there too).
+    max_step: float = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
 class FrontendConfig:
     """The front end's tuning, by part."""
 
@@ -197,6 +213,7 @@ class FrontendConfig:
     decimation: DecimationConfig = field(default_factory=DecimationConfig)
     sync: SyncConfig = field(default_factory=SyncConfig)
     odometry_input: OdometryInputConfig = field(default_factory=OdometryInputConfig)
+    wheel_sides: WheelSidesConfig = field(default_factory=WheelSidesConfig)
     # registrations remembered to resolve a match's reference scan to its keyframe (a match
     # refers to the last scan the matcher placed, at most a few empty scans back).
     remembered_registrations: int = 256

@@ -29,6 +29,8 @@ class Calibration:
     kept_nominal: tuple  # parameters the recording did not observe: their nominal value
     base_frame: str
     laser_frame: str
+    wheels_per_side: int = 1  # a skid-steer's 2 or more
+    wheel_separation: float = 0.0  # m, a skid-steer's geometric track (0: not given)
 
 
 def load_calibration(path, params: SclamParams = None) -> Calibration:
@@ -50,7 +52,9 @@ def load_calibration(path, params: SclamParams = None) -> Calibration:
     frames = doc.get("frames", {})
     base = frames.get("base") or (params.base_frame if params is not None else "base_link")
     laser = frames.get("laser") or DEFAULT_LASER_FRAME
-    return Calibration(values, kept, base, laser)
+    per_side = doc.get("wheels_per_side") or (params.wheels_per_side if params is not None else 1)
+    separation = doc.get("wheel_separation") or (params.wheel_separation if params is not None else 0.0)
+    return Calibration(values, kept, base, laser, int(per_side), float(separation or 0.0))
 
 
 def _comment_lines(cal: Calibration, source) -> list:
@@ -81,10 +85,14 @@ def diff_drive_parameters(cal: Calibration) -> dict:
     """diff_drive_controller's wheel geometry. The controller uses
     wheel_radius × <side>_wheel_radius_multiplier per side and wheel_separation ×
     wheel_separation_multiplier; wheel_radius is the mean calibrated radius, so the
-    multipliers carry the left/right difference."""
+    multipliers carry the left/right difference. A skid-steer's wheel_separation is its
+    geometric track (when given) and the multiplier widens it to the effective wheel base
+    calibrated; it gets wheels_per_side too (an integer parameter of the controller)."""
     r_l, r_r, base = (cal.values[k] for k in ODOMETRY_KEYS)
     radius = 0.5 * (r_l + r_r)
-    return {"wheel_separation": base, "wheel_separation_multiplier": 1.0,
+    separation = cal.wheel_separation if cal.wheels_per_side > 1 and cal.wheel_separation else base
+    skid = {"wheels_per_side": cal.wheels_per_side} if cal.wheels_per_side > 1 else {}
+    return {"wheel_separation": separation, **skid, "wheel_separation_multiplier": base / separation,
             "wheel_radius": radius, "left_wheel_radius_multiplier": r_l / radius,
             "right_wheel_radius_multiplier": r_r / radius}
 
@@ -100,7 +108,11 @@ def diff_drive_yaml(cal: Calibration, source, controller=DEFAULT_CONTROLLER) -> 
     lines = [f"# {line}" for line in _comment_lines(cal, source)]
     lines += ["# Merge into the controller's parameters (the controller manager's YAML).",
               f"{controller}:", "  ros__parameters:"]
-    lines += [f"    {k}: {_double(v)}" for k, v in diff_drive_parameters(cal).items()]
+    if cal.wheels_per_side > 1 and not cal.wheel_separation:
+        lines.insert(-2, "# No geometric wheel_separation given: the effective wheel base is the "
+                         "wheel_separation here.")
+    lines += [f"    {k}: {v if isinstance(v, int) else _double(v)}"
+              for k, v in diff_drive_parameters(cal).items()]
     return "\n".join(lines) + "\n"
 
 

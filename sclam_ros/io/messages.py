@@ -36,20 +36,34 @@ def stamp_to_sec(stamp) -> float:
 
 
 def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
-    """(stamp s, left position, right position) of the two wheel joints of ``params``.
+    """(stamp s, left position, right position) of the wheels of ``params``: of its two wheel
+    joints, or for a skid-steer (``left_wheel_joints``, ``right_wheel_joints``) the mean of
+    each side's (``side_position``).
 
     Positions stay in the encoder's raw unit (ticks, or radians when
     ``params.ticks_per_revolution`` is 0): unwrapping a counter needs the raw value, so the
-    conversion to radians happens in :class:`sclam_ros.frontend.encoder_stream.EncoderStream`. They are
-    multiplied by ``params.left_encoder_sign`` / ``right_encoder_sign`` (a backwards encoder).
+    conversion to radians happens in :class:`sclam_ros.frontend.encoder_stream.EncoderStream`.
+    Rejections: ``joint_state_wheels``.
+    """
+    stamp, left, right = joint_state_wheels(msg, params)
+    return (stamp, side_position(left, params.encoder_wrap),
+            side_position(right, params.encoder_wrap))
+
+
+def joint_state_wheels(msg, params) -> tuple[float, np.ndarray, np.ndarray]:
+    """(stamp s, left positions, right positions): the raw position of each wheel joint of
+    ``params`` (one per side, or a skid-steer's several, in the order named), multiplied by
+    ``params.left_encoder_sign`` / ``right_encoder_sign`` (a backwards encoder; a side's
+    wheels count the same way).
 
     Raises MessageRejected with reason
       ``joint_state_missing_joint``   a wheel joint is not in ``name`` (the text lists the names present),
-      ``joint_state_short_position``  ``position`` has fewer entries than the wheel's index in ``name``,
+      ``joint_state_short_position``  ``position`` has fewer entries than a wheel's index in ``name``,
       ``joint_state_non_finite``      a wheel position is NaN or ±inf.
     """
     names = list(msg.name)
-    wanted = (params.left_wheel_joint, params.right_wheel_joint)
+    left_joints, right_joints = params.wheel_joints()
+    wanted = left_joints + right_joints
     missing = [joint for joint in wanted if joint not in names]
     if missing:
         raise MessageRejected(
@@ -57,19 +71,37 @@ def joint_state_to_raw(msg, params) -> tuple[float, float, float]:
             f"joint(s) {missing} not in JointState; names present: {names}",
         )
     position = np.asarray(msg.position, dtype=float)
-    i_left, i_right = names.index(wanted[0]), names.index(wanted[1])
-    if len(position) <= max(i_left, i_right):
+    index = [names.index(joint) for joint in wanted]
+    if len(position) <= max(index):
         raise MessageRejected(
             "joint_state_short_position",
             f"{len(names)} names but {len(position)} positions",
         )
-    left, right = float(position[i_left]), float(position[i_right])
-    if not (math.isfinite(left) and math.isfinite(right)):
+    values = position[index]
+    if not np.all(np.isfinite(values)):
         raise MessageRejected(
-            "joint_state_non_finite", f"wheel positions left={left}, right={right}"
-        )
-    return (stamp_to_sec(msg.header.stamp), params.left_encoder_sign * left,
-            params.right_encoder_sign * right)
+            "joint_state_non_finite",
+            "wheel positions " + ", ".join(f"{j}={v}" for j, v in zip(wanted, values)))
+    n = len(left_joints)
+    return (stamp_to_sec(msg.header.stamp), params.left_encoder_sign * values[:n],
+            params.right_encoder_sign * values[n:])
+
+
+def side_position(values, wrap: float = 0.0) -> float:
+    """One side's position: the mean of its wheels' raw positions (the one wheel's as it is).
+
+    A counter with modulus ``wrap`` (> 0) is averaged around the circle: each wheel's offset
+    from the first is taken within ±wrap/2, so a counter that wraps before its neighbour's
+    does not move the mean by half the modulus. The mean may then lie outside [0, wrap); the
+    step between two means is still the side's motion modulo ``wrap``, which
+    EncoderStream unwraps."""
+    values = np.asarray(values, dtype=float)
+    if len(values) == 1:
+        return float(values[0])
+    offsets = values - values[0]
+    if wrap > 0:
+        offsets = (offsets + 0.5 * wrap) % wrap - 0.5 * wrap
+    return float(values[0] + offsets.mean())
 
 
 def quaternion_yaw(q) -> float:

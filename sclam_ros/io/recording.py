@@ -11,13 +11,15 @@ from sclam_ros.io import bag
 from sclam_ros.io.messages import (
     MessageRejected,
     check_scan,
-    joint_state_to_raw,
+    joint_state_wheels,
     laser_scan_to_scan,
     odometry_to_pose,
     quaternion_yaw,
+    side_position,
     stamp_to_sec,
 )
 from sclam_ros.frontend.odometry_wheels import WheelsFromOdometry
+from sclam_ros.frontend.wheel_sides import SideDisagreement
 from sclam_ros.frontend.pipeline import Frontend
 from sclam_ros.core.inputs import Rejections
 
@@ -34,6 +36,8 @@ class Recording:
     rejections: Rejections
     messages: dict = field(default_factory=dict)  # topic -> {read, used, corrupt} (bag.ReadCounts)
     frontend: Frontend = None
+    # a skid-steer's wheels of each side compared (SideDisagreement.summary); None otherwise
+    wheel_sides: dict = None
 
 
 # What each input topic must carry; anything else is a misconfigured topic name.
@@ -102,6 +106,39 @@ class HeaderClocks:
 
 
 _REJECTED = object()
+# JointState messages looked at for the wheel joints before the recording is read: a driver
+# may publish a robot's joints in several messages, but not spread over more than this.
+JOINT_CHECK_MESSAGES = 50
+
+
+def check_wheel_joints(path, params) -> None:
+    """BagError if a skid-steer's wheel joints are not in the first JointState messages, or
+    not together in one: each message is averaged per side as a whole."""
+    _, topic, _ = wheel_input(params)
+    joints = [j for side in params.wheel_joints() for j in side]
+    seen, whole = set(), False
+    messages = bag.iter_messages(path, [topic])
+    try:
+        for _, (_, _, msg) in zip(range(JOINT_CHECK_MESSAGES), messages):
+            names = set(msg.name)
+            seen |= names
+            whole = whole or names.issuperset(joints)
+    finally:
+        messages.close()
+    if not seen:
+        return  # no message: the count of what was read says so
+    absent = [j for j in joints if j not in seen]
+    if absent:
+        raise bag.BagError(
+            f"wheel joint(s) {', '.join(absent)} not in {topic} (its joints: "
+            f"{', '.join(sorted(seen))}): set left_wheel_joints and right_wheel_joints to the "
+            "names of each side's wheels")
+    if not whole:
+        raise bag.BagError(
+            f"{topic} carries the wheel joints {', '.join(joints)} in separate messages: a "
+            "side's wheels are averaged within one message; publish them in one JointState "
+            "(as joint_state_broadcaster does)")
+
 
 
 def check_odometry_frame(path, params) -> None:
@@ -146,13 +183,14 @@ def _warn_about_odometry(odometry: WheelsFromOdometry, topic) -> None:
 
 
 def iter_outputs(path, params, sink, progress=None, start=None, stop=None, counts=None,
-                 odometry=None):
+                 odometry=None, sides=None):
     """Feed a bag's messages in record order to `sink` (a Frontend or an OnlineCalibrator:
     anything with add_encoder, add_scan and rejections), through the same conversions the
     node uses; yield what each call returns. `start`/`stop`: record-time window (s).
     `counts`: a bag.ReadCounts to fill (messages read, used and corrupt per topic).
     `odometry`: the WheelsFromOdometry that turns an odometry_topic into wheel angles (one
-    with the default configuration if not given).
+    with the default configuration if not given). `sides`: the SideDisagreement a
+    skid-steer's wheels are compared in (one with the default configuration if not given).
 
     A message the conversions refuse is counted in the sink's rejections under its reason
     and warned about the first time that reason occurs; the others are used. Header stamps
@@ -165,6 +203,9 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
         check_odometry_frame(path, params)
         odometry = odometry or WheelsFromOdometry(params)
         _explain_odometry_input(params)
+    elif params.wheels_per_side > 1:
+        check_wheel_joints(path, params)
+    sides = sides or SideDisagreement(params)
     total = sum(info.get(t, (None, 0))[1] for t in topics)
     if start is not None or stop is not None:  # a window: estimate its share of the messages
         first, last = bag.time_span(path)
@@ -182,8 +223,10 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
                 left, right = odometry.add(stamp, pose, yaw_rate)
                 output = sink.add_encoder(stamp - shift, left, right)
             elif topic == wheel_topic:
-                stamp, left, right = joint_state_to_raw(msg, params)
-                output = sink.add_encoder(stamp - shift, left, right)
+                stamp, left, right = joint_state_wheels(msg, params)
+                sides.add(left, right)
+                output = sink.add_encoder(stamp - shift, side_position(left, params.encoder_wrap),
+                                          side_position(right, params.encoder_wrap))
             else:
                 scan = laser_scan_to_scan(msg)
                 scan.stamp -= shift
@@ -223,14 +266,18 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
                     ", ".join(f"{frame}: {n} scans" for frame, n in frames.most_common()))
     if params.odometry_topic:
         _warn_about_odometry(odometry, wheel_topic)
+    for line in sides.warnings():
+        log.warning("%s", line)
     if progress is not None:
         progress(total, total)
 
 
-def iter_keyframes(path, params, frontend=None, progress=None, start=None, stop=None, counts=None):
+def iter_keyframes(path, params, frontend=None, progress=None, start=None, stop=None, counts=None,
+                   sides=None):
     """Yield keyframes from a bag (or its record-time window [start, stop)) in record order."""
     frontend = frontend or Frontend(params)
-    for keyframes in iter_outputs(path, params, frontend, progress, start, stop, counts):
+    for keyframes in iter_outputs(path, params, frontend, progress, start, stop, counts,
+                                  sides=sides):
         yield from keyframes
     yield from frontend.flush()
 
@@ -241,8 +288,9 @@ def read_recording(path, params, progress=None, start=None, stop=None,
     map of walls)."""
     frontend = Frontend(params, keep_scan_points=keep_scan_points)
     counts = bag.ReadCounts()
-    keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop, counts))
-    return Recording(keyframes, frontend.rejections, counts.as_dict(), frontend)
+    sides = SideDisagreement(params)
+    keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop, counts, sides))
+    return Recording(keyframes, frontend.rejections, counts.as_dict(), frontend, sides.summary())
 
 
 def scan_frame_id(path, topic):

@@ -87,9 +87,10 @@ def _wheels(robot, tree, base, source):
             f"wheel_radius_left, wheel_radius_right and wheel_base in a parameters file (--params)")
     if len(wheels) > 2:
         raise InferenceError(
-            f"{source}: {len(wheels)} wheel joints ({', '.join(w[0] for w in wheels)}): only a "
-            "differential drive's two are calibrated; name them (left_wheel_joint, "
-            "right_wheel_joint) and their geometry in a parameters file (--params)")
+            f"{source}: {len(wheels)} wheel joints ({', '.join(w[0] for w in wheels)}): zero "
+            "configuration infers a differential drive's two; for a skid-steer name each side's "
+            "(left_wheel_joints, right_wheel_joints), wheel_separation and a first wheel_base "
+            "(1.5 x the track) in a parameters file (--params)")
     right, left = sorted(wheels, key=lambda w: w[2][1])
     if not left[2][1] > 0 > right[2][1]:
         raise InferenceError(

@@ -88,12 +88,27 @@ class Trajectory:
 
 @dataclass
 class TrueKinematics:
-    """The simulated robot's real wheels and how they move the body."""
+    """The simulated robot's real wheels and how they move the body.
+
+    A skid-steer (``track_widening`` χ > 1) follows the kinematic model of the instantaneous
+    centres of rotation (ICR) of its tracks (Martínez et al. 2005, Mandow et al. 2007): its
+    side contact lines are ``wheel_base`` (B) apart, but in a turn the wheels slip sideways
+    and each side turns about its own ICR at ±χ·B/2 instead of ±B/2. With side speeds
+    v_l, v_r (wheel rate × radius, all wheels of a side alike): v = (v_r + v_l)/2,
+    ω = (v_r − v_l)/(χ·B), and no sideways body motion (the body's ICR on its y axis: mass
+    centred over the wheels). That is a differential drive with the effective wheel base
+    χ·B, which is what the calibration is compared with.
+    """
 
     wheel_radius_left: float
     wheel_radius_right: float
     wheel_base: float
     effects: EffectSet = field(default_factory=EffectSet)
+    track_widening: float = 1.0  # χ: the sides' ICRs at ±χ·wheel_base/2
+
+    @property
+    def effective_wheel_base(self) -> float:
+        return self.track_widening * self.wheel_base
 
     def body_twist(self, t, v, w):
         """True body twist for the controller's (v, ω); effects such as slip enter here."""
@@ -105,14 +120,14 @@ class TrueKinematics:
     def wheel_angle_increments(self, trajectory: Trajectory) -> np.ndarray:
         """(K, 2) left/right wheel rotation over each interval, in radians.
 
-        The wheels roll on their contact points: surface speeds vx ∓ ω·b/2 (lateral
-        slip vy is not seen by them). Radii are taken at the interval's midpoint, which
+        The wheels roll on their contact points: surface speeds vx ∓ ω·b/2 with b the
+        effective wheel base (lateral slip vy is not seen by them). Radii are taken at the interval's midpoint, which
         is exact for steps aligned to knots and second-order for smooth drifts.
         """
         mid = trajectory.knot_times[:-1] + trajectory.dt / 2.0
         r_left, r_right = self.radii(mid)
         vx, w = trajectory.twists[:, 0], trajectory.twists[:, 2]
-        half_base = self.wheel_base / 2.0
+        half_base = self.effective_wheel_base / 2.0
         left = (vx - w * half_base) / r_left * trajectory.dt
         right = (vx + w * half_base) / r_right * trajectory.dt
         return self.effects.wheel_increments(mid, np.stack([left, right], -1), trajectory.twists)

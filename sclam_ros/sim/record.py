@@ -50,6 +50,8 @@ WHEEL_OUTPUTS = ("joint_states", "odom", "both")
 JOINT_UNITS = ("ticks", "rad")
 ROBOT_DESCRIPTION_TOPIC = "/robot_description"
 JOINT_NAMES = ("left_wheel_joint", "right_wheel_joint")
+SKID_JOINT_NAMES = ("front_left_wheel_joint", "rear_left_wheel_joint",
+                    "front_right_wheel_joint", "rear_right_wheel_joint")
 CONTROL_RATE = 50.0  # Hz, the simulated controller's update rate
 # Scans start a little after the encoders so the two streams never share stamps and the
 # sync has to interpolate, as on a real robot.
@@ -60,7 +62,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
              progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False, scene="office",
              laser=None, motion="route", outdoor=None, wheels="joint_states",
-             description=False, joint_units="ticks") -> dict:
+             description=False, joint_units="ticks", track_widening=None) -> dict:
     """Simulate ``duration`` s of ``robot`` driving through ``scene`` into ``out``.
 
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
@@ -80,6 +82,12 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     with the nominal values, as robot_state_publisher latches them.
     ``joint_units``: the JointState's positions in encoder "ticks" or in "rad" (as
     ros2_control's joint_state_broadcaster publishes them: still quantised by the encoder).
+    ``track_widening``: χ of a skid-steer (the preset's when None; motion.TrueKinematics):
+    its sides turn about centres χ times as far apart as its geometric track. A preset with
+    several wheels per side (``skid``) writes each wheel's joint (SKID_JOINT_NAMES) and
+    params.yaml names them in left_wheel_joints / right_wheel_joints; its ``--true
+    wheel_base`` is the geometric track, and truth.json's ``wheel_base`` the effective one
+    (χ times it) beside ``wheel_separation`` (the geometric one) and ``track_widening``.
     ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
     """
     report = progress or (lambda message: None)
@@ -95,11 +103,19 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     if wheels not in WHEEL_OUTPUTS:
         raise ValueError(f"wheels must be one of {', '.join(WHEEL_OUTPUTS)}, got {wheels!r}")
     preset = get_preset(robot)
+    widening = preset.track_widening if track_widening is None else float(track_widening)
+    if not 1.0 <= widening <= 5.0:
+        raise ValueError(f"track_widening must be in [1, 5], got {widening}")
+    if description and preset.wheels_per_side > 1:
+        raise ValueError("the robot description written is a two-wheel one: not for a skid-steer")
     truth = true_calibration(preset, true_overrides)
     effect_set = EffectSet.from_spec(effects).for_duration(duration)
     kinematics = TrueKinematics(
-        truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"], effect_set
+        truth["wheel_radius_left"], truth["wheel_radius_right"], truth["wheel_base"], effect_set,
+        widening,
     )
+    geometric_track = truth["wheel_base"]
+    truth["wheel_base"] = kinematics.effective_wheel_base
     mount = np.array([truth["laser_x"], truth["laser_y"], truth["laser_yaw"]])
     world = scene_world(scene, outdoor)
     model = LaserModel(beams=beams, range_noise=range_noise, **(laser or {}))
@@ -113,7 +129,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     )
     encoders = encoder_samples(
         trajectory, kinematics, encoder_rate, preset.ticks_per_revolution,
-        np.random.default_rng(encoder_rng), slip_noise,
+        np.random.default_rng(encoder_rng), slip_noise, preset.wheels_per_side,
     )
     time_increment = effect_set.scan_time_increment(scan_rate, beams)
     scan_times = SCAN_PHASE + np.arange(
@@ -136,8 +152,9 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         latched = (robot_urdf(preset.name, preset.nominal), laser_transform(preset.nominal))
     in_rad = joint_units == "rad"
     positions = encoders.ticks * (2.0 * np.pi / preset.ticks_per_revolution if in_rad else 1.0)
+    names = joint_names(preset)
     _write_bag(out, storage, trajectory, encoders.times, positions, scans, effect_set,
-               joint_states=wheels != "odom", odometry=odometry, latched=latched)
+               joint_states=wheels != "odom", odometry=odometry, latched=latched, names=names)
 
     params = SclamParams(
         joint_states_topic=JOINT_STATES_TOPIC,
@@ -147,6 +164,11 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         ticks_per_revolution=float(preset.ticks_per_revolution),
         **preset.nominal,
     )
+    if preset.wheels_per_side > 1:
+        half = len(names) // 2
+        params = dataclasses.replace(params, left_wheel_joints=names[:half],
+                                     right_wheel_joints=names[half:],
+                                     wheel_separation=preset.wheel_separation)
     if wheels == "odom" or in_rad:
         params = dataclasses.replace(params, ticks_per_revolution=0.0)
     if wheels == "odom":
@@ -168,6 +190,9 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         "motion": motion,
         "nominal": dict(preset.nominal),
         "ticks_per_revolution": float(preset.ticks_per_revolution),
+        "wheels_per_side": preset.wheels_per_side,
+        "wheel_separation": geometric_track,
+        "track_widening": widening,
         "storage": storage,
         "sensors": {
             "encoder_rate": float(encoder_rate),
@@ -211,12 +236,18 @@ def _truth_times(encoder_times, duration):
     return np.arange(int(np.floor(duration * CONTROL_RATE + 1e-9)) + 1) / CONTROL_RATE
 
 
+def joint_names(preset) -> tuple:
+    """The JointState names of the preset's wheels: the left side's, then the right's."""
+    return SKID_JOINT_NAMES if preset.wheels_per_side > 1 else JOINT_NAMES
+
+
 def wheel_odometry(encoders, preset):
     """(poses (J, 3), twists (J, 2) v, ω): the encoder samples integrated with the preset's
-    nominal values, as a base driver or diff_drive_controller does; the twist of each
-    sample is its last increment over its interval (0 at the first)."""
+    nominal values, as a base driver or diff_drive_controller does (a side's wheels
+    averaged); the twist of each sample is its last increment over its interval (0 at the
+    first)."""
     k = np.array([preset.nominal[key] for key in ODOMETRY_KEYS])
-    dphi = np.diff(encoders.ticks, axis=0) * 2.0 * np.pi / preset.ticks_per_revolution
+    dphi = np.diff(encoders.side_ticks(), axis=0) * 2.0 * np.pi / preset.ticks_per_revolution
     motion = np.zeros((len(encoders.times), 3))
     motion[1:] = kinematics.forward(dphi, k)
     twists = np.zeros((len(encoders.times), 2))
@@ -227,9 +258,10 @@ def wheel_odometry(encoders, preset):
 
 
 def _write_bag(out, storage, trajectory, encoder_times, positions, scans, effect_set: EffectSet,
-               joint_states=True, odometry=None, latched=None) -> None:
+               joint_states=True, odometry=None, latched=None, names=JOINT_NAMES) -> None:
     """All messages in record-time order (= header stamp order). ``joint_states``: write the
-    wheel ``positions`` sampled at ``encoder_times`` on /joint_states; ``odometry``: (poses,
+    wheel ``positions`` (a column per joint of ``names``) sampled at ``encoder_times`` on
+    /joint_states; ``odometry``: (poses,
     twists) written on /odom at the encoder stamps; ``latched``: (URDF text, laser transform)
     written first on /robot_description and /tf_static."""
     encoder_stamps = START_TIME + effect_set.encoder_stamp(encoder_times)
@@ -251,7 +283,7 @@ def _write_bag(out, storage, trajectory, encoder_times, positions, scans, effect
             bag.write_tf_static(START_TIME, [latched[1]])
         for stamp, kind, i in events:
             if kind == 0:
-                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, JOINT_NAMES, positions[i])
+                bag.write_joint_state(JOINT_STATES_TOPIC, stamp, names, positions[i])
             elif kind == 1:
                 bag.write_odometry(GROUND_TRUTH_TOPIC, stamp, truth_poses[i], truth_twists[i])
             elif kind == 3:

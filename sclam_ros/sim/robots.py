@@ -1,4 +1,5 @@
-"""Robot presets: the three robots of Kümmerle et al. (IROS 2011).
+"""Robot presets: the three robots of Kümmerle et al. (IROS 2011), and a four-wheel
+skid-steer.
 
 ``nominal`` is what a user would write into params.yaml before calibrating (datasheet
 values); ``true`` is what the simulated robot really has, by default the paper's first
@@ -20,6 +21,13 @@ class RobotPreset:
     true: dict  # CALIBRATION_KEYS -> value (m, rad)
     ticks_per_revolution: float
     footprint_radius: float  # m
+    # A skid-steer's: wheels on each side (their JointState names: record.joint_names), the
+    # track widening χ of its sides' instantaneous centres of rotation (motion.py) and its
+    # nominal geometric track (m). Its ``true`` wheel_base is the geometric track (the
+    # effective one is χ times it), its ``nominal`` one a first guess of the effective one.
+    wheels_per_side: int = 1
+    track_widening: float = 1.0
+    wheel_separation: float = 0.0
 
 
 def _calibration(r_left, r_right, base, laser_x, laser_y, laser_yaw_deg) -> dict:
@@ -48,6 +56,21 @@ PRESETS: dict[str, RobotPreset] = {
         true=_calibration(0.0656, 0.065, 0.3519, 0.1045, 0.009, -0.178),
         ticks_per_revolution=1970,
         footprint_radius=0.3,
+    ),
+    # A Husky-sized four-wheel skid-steer (geometric track 0.555 m, wheels 0.165 m), whose
+    # sides turn about centres 1.5 times as far apart as the tracks. Nominal wheel_base: 1.5
+    # times the track measured with a tape (started from the track itself, 2× off, the scan
+    # matcher's odometry guesses fail in turns and the wheel base is left undetermined:
+    # docs/robot_inputs.md#skid-steer).
+    "skid": RobotPreset(
+        "skid",
+        nominal=_calibration(0.165, 0.165, 1.5 * 0.555, 0.30, 0.0, 0.0),
+        true=_calibration(0.1656, 0.1643, 0.555, 0.3064, 0.0071, 0.45),
+        ticks_per_revolution=10000,
+        footprint_radius=0.45,
+        wheels_per_side=2,
+        track_widening=1.5,
+        wheel_separation=0.555,
     ),
 }
 

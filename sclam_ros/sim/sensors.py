@@ -18,30 +18,37 @@ DEFAULT_SLIP_NOISE = 0.005 * np.sqrt(2.0 * np.pi)
 @dataclass
 class EncoderSamples:
     times: np.ndarray  # (J,) s, true sampling times (relative)
-    ticks: np.ndarray  # (J, 2) cumulative ticks (left, right), integer-valued floats
-    true_angles: np.ndarray  # (J, 2) rad, wheel angles without slip noise or quantisation
+    ticks: np.ndarray  # (J, 2n) cumulative ticks (n left wheels, n right), integer-valued floats
+    true_angles: np.ndarray  # (J, 2n) rad, wheel angles without slip noise or quantisation
+
+    def side_ticks(self) -> np.ndarray:
+        """(J, 2) ticks per side (left, right): the mean of its wheels'."""
+        return self.ticks.reshape(len(self.ticks), 2, -1).mean(axis=2)
 
 
 def encoder_samples(trajectory: Trajectory, kinematics: TrueKinematics, rate: float,
                     ticks_per_revolution: float, rng: np.random.Generator,
-                    slip_noise: float = DEFAULT_SLIP_NOISE) -> EncoderSamples:
+                    slip_noise: float = DEFAULT_SLIP_NOISE, wheels_per_side: int = 1) -> EncoderSamples:
     """Quantised cumulative ticks at ``rate`` Hz, from the true kinematics plus slip noise.
 
     Counters start at a random count, as a real robot's do after a while powered on.
-    Both wheels count up when driving forward.
+    All wheels count up when driving forward. ``wheels_per_side``: the wheels of a side turn
+    alike (a skid-steer's chained or equally driven wheels), each with its own slip noise,
+    quantisation and counter.
     """
-    increments = kinematics.wheel_angle_increments(trajectory)
+    increments = np.repeat(kinematics.wheel_angle_increments(trajectory), wheels_per_side, axis=1)
     # Slip: each interval's rotation gets noise with variance ∝ the angle turned.
     slip = rng.standard_normal(increments.shape) * slip_noise * np.sqrt(np.abs(increments))
     slip *= kinematics.effects.slip_noise_scale(trajectory.poses[:-1, :2])[:, None]
-    true_knots = np.vstack([np.zeros(2), np.cumsum(increments, axis=0)])
-    measured_knots = np.vstack([np.zeros(2), np.cumsum(increments + slip, axis=0)])
+    wheels = increments.shape[1]
+    true_knots = np.vstack([np.zeros(wheels), np.cumsum(increments, axis=0)])
+    measured_knots = np.vstack([np.zeros(wheels), np.cumsum(increments + slip, axis=0)])
     times = np.arange(int(np.floor(trajectory.duration * rate + 1e-9)) + 1) / rate
     knot_times = trajectory.knot_times
     # Rotation is linear within an interval (constant twist), so interpolation is exact.
-    true_angles = np.stack([np.interp(times, knot_times, true_knots[:, i]) for i in range(2)], -1)
-    measured = np.stack([np.interp(times, knot_times, measured_knots[:, i]) for i in range(2)], -1)
-    start_ticks = rng.integers(0, 100_000, size=2) + rng.random(2)
+    true_angles = np.stack([np.interp(times, knot_times, true_knots[:, i]) for i in range(wheels)], -1)
+    measured = np.stack([np.interp(times, knot_times, measured_knots[:, i]) for i in range(wheels)], -1)
+    start_ticks = rng.integers(0, 100_000, size=wheels) + rng.random(wheels)
     ticks = np.floor(start_ticks + measured * ticks_per_revolution / (2.0 * np.pi))
     return EncoderSamples(times, ticks, true_angles)
 
