@@ -31,6 +31,7 @@ import numpy as np
 from sclam_ros.core import kinematics, se2
 from sclam_ros.io.bag import BagError, BagWriter
 from sclam_ros.core.params import ODOMETRY_KEYS, SclamParams, atomic_write_text
+from sclam_ros.sim.conditions import RecordingConditions
 from sclam_ros.sim.description import laser_transform, robot_urdf
 from sclam_ros.sim.effects import EffectSet
 from sclam_ros.sim.motion import TrueKinematics
@@ -62,7 +63,8 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
              scan_rate=10.0, beams=360, encoder_rate=50.0, range_noise=0.01, effects=None,
              progress=None, slip_noise=DEFAULT_SLIP_NOISE, overwrite=False, scene="office",
              laser=None, motion="route", outdoor=None, wheels="joint_states",
-             description=False, joint_units="ticks", track_widening=None) -> dict:
+             description=False, joint_units="ticks", track_widening=None,
+             conditions=None) -> dict:
     """Simulate ``duration`` s of ``robot`` driving through ``scene`` into ``out``.
 
     Deterministic for a seed. ``true_overrides``: dict of calibration keys -> true value.
@@ -88,7 +90,10 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     params.yaml names them in left_wheel_joints / right_wheel_joints; its ``--true
     wheel_base`` is the geometric track, and truth.json's ``wheel_base`` the effective one
     (χ times it) beside ``wheel_separation`` (the geometric one) and ``track_widening``.
-    ``progress``: callable taking a one-line message. Returns the truth (as truth.json).
+    ``conditions``: a sim.conditions.RecordingConditions (scan phase, stamp jitter, whether
+    a sweep is stated, how no return is encoded, encoder resolution; default: scans 13 ms
+    after the encoder samples, exact stamps, inf). ``progress``: callable taking a one-line
+    message. Returns the truth (as truth.json).
     """
     report = progress or (lambda message: None)
     out = Path(out)
@@ -103,6 +108,9 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     if wheels not in WHEEL_OUTPUTS:
         raise ValueError(f"wheels must be one of {', '.join(WHEEL_OUTPUTS)}, got {wheels!r}")
     preset = get_preset(robot)
+    conditions = conditions or RecordingConditions(scan_phase=SCAN_PHASE)
+    if conditions.ticks_per_revolution is not None:
+        preset = dataclasses.replace(preset, ticks_per_revolution=conditions.ticks_per_revolution)
     widening = preset.track_widening if track_widening is None else float(track_widening)
     if not 1.0 <= widening <= 5.0:
         raise ValueError(f"track_widening must be in [1, 5], got {widening}")
@@ -120,7 +128,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
     world = scene_world(scene, outdoor)
     model = LaserModel(beams=beams, range_noise=range_noise, **(laser or {}))
     # Independent streams per purpose: changing the laser model does not change the route.
-    route_seed, encoder_rng, laser_rng = np.random.SeedSequence(seed).spawn(3)
+    route_seed, encoder_rng, laser_rng, stamp_rng = np.random.SeedSequence(seed).spawn(4)
 
     report(f"planning and driving {duration:.0f} s of trajectory ({preset.name}, seed {seed})")
     trajectory = simulate_trajectory(
@@ -132,8 +140,9 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         np.random.default_rng(encoder_rng), slip_noise, preset.wheels_per_side,
     )
     time_increment = effect_set.scan_time_increment(scan_rate, beams)
-    scan_times = SCAN_PHASE + np.arange(
-        int(np.floor((duration - SCAN_PHASE - time_increment * beams) * scan_rate)) + 1
+    phase = conditions.scan_phase
+    scan_times = phase + np.arange(
+        int(np.floor((duration - phase - time_increment * beams) * scan_rate)) + 1
     ) / scan_rate
 
     def scan_progress(done, total):
@@ -144,6 +153,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         world, trajectory, mount, scan_times, model, np.random.default_rng(laser_rng),
         time_increment, START_TIME, progress=scan_progress,
     )
+    scans = _as_recorded(scans, conditions, np.random.default_rng(stamp_rng))
 
     report(f"writing {storage} bag {out}")
     odometry = wheel_odometry(encoders, preset) if wheels != "joint_states" else None
@@ -209,6 +219,7 @@ def simulate(out, robot="powerbot", duration=300.0, seed=0, true_overrides=None,
         },
         "wheels": wheels,
         "joint_units": joint_units,
+        "conditions": conditions.describe(),
         "topics": {
             **({"robot_description": ROBOT_DESCRIPTION_TOPIC, "tf_static": "/tf_static"}
                if description else {}),
@@ -290,3 +301,21 @@ def _write_bag(out, storage, trajectory, encoder_times, positions, scans, effect
                 bag.write_odometry(ODOMETRY_TOPIC, stamp, odometry[0][i], odometry[1][i])
             else:
                 bag.write_scan(SCAN_TOPIC, scans[i])
+
+
+def _as_recorded(scans, conditions: RecordingConditions, rng):
+    """The scans as the driver writes them: stamps off by the stamping jitter (kept in
+    order: a jittered stamp is never before the previous one), no returns in its encoding,
+    time_increment 0 where it does not state a sweep."""
+    out = []
+    last = -np.inf
+    for scan in scans:
+        stamp = scan.stamp
+        if conditions.scan_stamp_jitter > 0.0:
+            stamp = max(stamp + conditions.scan_stamp_jitter * rng.standard_normal(), last + 1e-4)
+        last = stamp
+        out.append(dataclasses.replace(
+            scan, stamp=float(stamp),
+            ranges=conditions.encode_no_return(scan.ranges, scan.range_max),
+            time_increment=scan.time_increment if conditions.sweep_stated else 0.0))
+    return out
