@@ -33,6 +33,10 @@ class StructureConfig:
     alpha: float = 0.01
     # edges; the Ljung-Box test's lags: the usual choice for a series without seasons
     ljung_box_lags: int = 10
+    # first lag the whiteness test looks at: neighbouring edges share a pose, and
+    # consecutive scan matches a scan, so their errors correlate at lag 1 by construction
+    # (the model's, not an effect's; docs/decisions/diagnose.md); beyond it they do not
+    ljung_box_first_lag: int = 2
     # whitened σ; residuals are clipped here so that an odd failed scan match cannot dominate
     residual_clip: float = 3.0
 

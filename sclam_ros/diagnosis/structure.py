@@ -16,17 +16,23 @@ from scipy import stats
 from sclam_ros.diagnosis.config import StructureConfig
 
 
-def ljung_box(series, lags: int):
-    """(Q, p) of the Ljung-Box test of no autocorrelation up to `lags`."""
+def ljung_box(series, lags: int, first: int = 1):
+    """(Q, p) of the Ljung-Box test of no autocorrelation at lags `first` to `lags`.
+
+    From first = 2 the test allows any correlation at lag 1: Bartlett's variance of the
+    sample autocorrelation beyond lag 1 of an MA(1) series, (1 + 2ρ₁²)/n, scales Q."""
     x = np.asarray(series, float) - np.mean(series)
     n = len(x)
     lags = min(lags, n // 4)
     denom = float(np.dot(x, x))
-    if lags < 1 or denom <= 0:
+    if lags < first or denom <= 0:
         return 0.0, 1.0
     rho = np.array([np.dot(x[:-h], x[h:]) / denom for h in range(1, lags + 1)])
-    q = n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1)))
-    return float(q), float(stats.chi2.sf(q, lags))
+    h = np.arange(first, lags + 1)
+    q = n * (n + 2) * np.sum(rho[first - 1:] ** 2 / (n - h))
+    if first > 1:
+        q /= 1.0 + 2.0 * rho[0] ** 2
+    return float(q), float(stats.chi2.sf(q, len(h)))
 
 
 def explained(x, y):
@@ -62,8 +68,8 @@ def residual_tests(residuals: dict, regs: dict, edge_of: dict, config: Structure
 
     residuals: component name -> (m,) whitened values; regs: group name -> (m_o, c);
     edge_of: component name -> (m,) index into the regressor rows. Strength: the multiple
-    correlation √R²; whiteness: Ljung-Box over the first config.ljung_box_lags lags
-    (regressor "lag")."""
+    correlation √R²; whiteness: Ljung-Box from lag config.ljung_box_first_lag to
+    config.ljung_box_lags (regressor "lag")."""
     out = []
     for comp, res in residuals.items():
         y = np.clip(res, -config.residual_clip, config.residual_clip)
@@ -74,7 +80,7 @@ def residual_tests(residuals: dict, regs: dict, edge_of: dict, config: Structure
             if np.isfinite(r2):
                 out.append({"component": comp, "regressor": name, "strength": float(np.sqrt(r2)),
                             "fraction_explained": float(max(r2_adj, 0.0)), "p_value": p})
-        q, p = ljung_box(res, config.ljung_box_lags)
+        q, p = ljung_box(res, config.ljung_box_lags, config.ljung_box_first_lag)
         out.append({"component": comp, "regressor": "lag",
                     "strength": float(np.sqrt(q / max(len(res), 1))), "p_value": p})
     return out
