@@ -88,3 +88,14 @@ def test_selects_scan_distortion(folder):
     mean_beam_time = 0.5 * fraction / scan_rate
     assert _value(report, "scan_distortion") == pytest.approx(mean_beam_time, rel=0.2)
     assert report["extended"]["error"] < report["base"]["error"]
+
+
+def test_a_clock_offset_on_instantaneous_scans_is_reported_as_one(folder):
+    """Scans that state time_increment 0 were taken at once: a 30 ms delay between the
+    encoders and the laser is a clock offset, reported as time_offset (s; δ > 0: the
+    encoders' clock is ahead), not as a sweep, and the two are not called inseparable."""
+    simulate(folder / "clock", duration=90.0, seed=SEED, effects={"time_offset": 0.03})
+    report = _diagnose(folder / "clock")
+    assert _selected(report) == ["time_offset"]
+    assert _value(report, "time_offset") == pytest.approx(0.03, rel=0.2)
+    assert report["not_separable"] == []

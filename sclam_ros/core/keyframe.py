@@ -32,6 +32,9 @@ class Keyframe:
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to
     laser_motion: Optional[np.ndarray] = None  # z: laser_j ⊖ laser_from, in that frame
     laser_information: Optional[np.ndarray] = None  # (3, 3)
+    # s from its scan's first beam to its last, as the scan states it (time_increment ·
+    # (beams − 1)); 0: taken at once, or the driver does not say
+    sweep: float = 0.0
     # (n, 2) m, the scan's points in the laser frame, float32: kept only on request
     # (Frontend keep_scan_points), for the diagnosis's map of walls
     scan_points: Optional[np.ndarray] = None

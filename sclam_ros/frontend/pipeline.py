@@ -139,7 +139,8 @@ class Frontend:
         self._count += 1
         kf = Keyframe(index, synced.scan.stamp, np.array(synced.wheels.angles, float),
                       angle_variance=np.array(synced.wheels.variance, float),
-                      since_sample=float(synced.wheels.since_sample))
+                      since_sample=float(synced.wheels.since_sample),
+                      sweep=abs(float(synced.scan.time_increment)) * max(len(synced.scan.ranges) - 1, 0))
         if self._previous is not None:
             increment, reason = increment_between(self._previous, synced, self.stream)
             if increment is not None:

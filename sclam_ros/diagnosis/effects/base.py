@@ -38,6 +38,10 @@ class EffectData:
     # The walls the laser saw on the fitted map (diagnosis/wall_map.WallMap; None: no
     # scans kept): where a noise region's boundary may lie.
     walls: object = None
+    # s: when the scans' mean beam was taken after their stamps, from what they state of
+    # their sweep (half of it; median over the scans; 0: taken at once or not stated);
+    # None: not known (EffectData made without keyframes)
+    sweep_delay: float = None
 
     @property
     def reference_time(self) -> float:
@@ -57,8 +61,9 @@ class EffectData:
             speeds = np.zeros_like(raw_phi)
         stamps = np.asarray(stamps, float)
         omega = np.column_stack([np.interp(stamps, raw_t, speeds[:, c]) for c in range(2)])
+        sweep = float(np.median([0.5 * kf.sweep for kf in raw_keyframes])) if raw_keyframes else None
         return cls(stamps, omega, None if positions is None else np.asarray(positions, float),
-                   laser_turn_rates(raw_keyframes, stamps))
+                   laser_turn_rates(raw_keyframes, stamps), sweep_delay=sweep)
 
 
 def laser_turn_rates(raw_keyframes, stamps):
@@ -118,7 +123,12 @@ class ModelEffect:
         return model in self.kind.split("+")
 
     def initial(self) -> np.ndarray:
-        return np.zeros(self.dim)
+        return self.prior()[0]
+
+    def prior(self) -> tuple:
+        """(mean, σ) per parameter of the prior that keeps an unexcited effect well-posed:
+        zero-mean and weak (prior_sigma) unless the data state a value."""
+        return np.zeros(self.dim), np.full(self.dim, float(self.prior_sigma))
 
     def adjust_dphi(self, dphi, p, i, j):
         m = len(dphi)

@@ -132,7 +132,8 @@ class EffectLaserFactor(factors.LaserFactor):
 def extend_problem(problem: Problem, effects, initial=None) -> Problem:
     """The same graph (values, priors, gauge, kernels, scales) with the effects estimated:
     the odometry and laser factors replaced by their effect-aware versions, one block and
-    a weak zero-mean prior per effect. Noise effects (kind "noise") change no factor."""
+    a prior per effect (ModelEffect.prior: weak and zero-mean unless the data state a
+    value). Noise effects (kind "noise") change no factor."""
     initial = initial or {}
     values = problem.values.copy()
     new_factors = []
@@ -147,8 +148,9 @@ def extend_problem(problem: Problem, effects, initial=None) -> Problem:
     for e in fitted:
         if e.name not in values:
             values.add(e.name, [initial.get(e.name, e.initial())])
+        mean, sigma = e.prior()
         new_factors.append(factors.PriorFactor(
-            e.name, [0], [np.zeros(e.dim)], np.eye(e.dim) * e.prior_sigma ** -2.0,
+            e.name, [0], [np.asarray(mean, float)], np.diag(np.asarray(sigma, float) ** -2.0),
             angular=(False,) * e.dim, name="effect_prior"))
     return Problem(values, new_factors, fixed=problem.fixed, kernels=problem.kernels,
                    scales=problem.scales, corrections=problem.corrections)

@@ -28,9 +28,15 @@ with the wheel speeds ω, and the match is corrected for the shift,
     z' = z + (g_x, g_y, 0)·(ω_j − ω_i),
 ω_k the turn rate at scan k from the scan matches themselves (EffectData.turn_rates: no
 wheel calibration enters). Parameters (τ, g_x, g_y) in s, m·s, m·s; the value reported
-is τ. With all at 0 both edges are unchanged. A clock offset and a sweep delay being one
-parameter when both are in the model, diagnose's stepwise selection keeps one of them:
-time_offset where the shift adds nothing, scan_distortion where it does.
+is τ. With all at 0 both edges are unchanged.
+
+The delay is what the scans state: a LaserScan's time_increment says when each beam was
+taken, so τ's prior is centred on half the stated sweep (EffectData.sweep_delay; 0 for a
+scan that states time_increment 0, taken at once) with σ stated_delay_sigma. A delay the
+stated sweep does not explain is then a clock offset between encoders and laser, which
+time_offset reports, not a sweep: a clock offset and a sweep delay are one parameter to
+first order, and only the scans' own statement tells them apart. Where nothing is known of
+the sweep (EffectData without keyframes), τ's prior is the weak zero-mean one.
 """
 from __future__ import annotations
 
@@ -47,6 +53,15 @@ class ScanDistortion(ModelEffect):
     units = "s (delay τ; then g_x, g_y in m·s)"
     doc = "a moving sweep's match errors: delay τ of the mean beam, shift g·Δω of a changing turn"
     prior_sigma = 1.0
+    # s, 1σ of τ about the stated sweep's half: a driver stamps its first beam or its
+    # nominal start, and its time_increment is the beam period to a fraction of a beam
+    stated_delay_sigma = 0.002
+
+    def prior(self):
+        mean, sigma = super().prior()
+        if self.data.sweep_delay is not None:
+            mean[0], sigma[0] = self.data.sweep_delay, self.stated_delay_sigma
+        return mean, sigma
 
     def adjust_dphi(self, dphi, p, i, j):
         shifted, d_dphi, d_tau = clock_shift(self.data, dphi, p[0], i, j)
