@@ -255,7 +255,9 @@ class SclamNode(Node):
                 f"unknown parameter(s) ignored: {', '.join(map(with_suggestion, unknown))}")
 
     def _read_params(self) -> SclamParams:
+        # None: an empty list in a parameters file, which rcl reads as NOT_SET: the default.
         raw = {f.name: self.get_parameter(f.name).value for f in fields(SclamParams)}
+        raw = {name: value for name, value in raw.items() if value is not None}
         return SclamParams.from_dict(raw, source=f"parameters of node {self.get_name()}")
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
