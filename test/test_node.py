@@ -25,7 +25,7 @@ os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 200)
 
 import rclpy  # noqa: E402
 import yaml  # noqa: E402
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterType, ParameterValue  # noqa: E402
@@ -34,7 +34,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState, LaserScan  # noqa: E402
-from std_msgs.msg import Float64MultiArray  # noqa: E402
+from std_msgs.msg import Float64MultiArray, String  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
 import polling  # noqa: E402
@@ -133,9 +133,11 @@ def graph():
     g.close()
 
 
-def start_node(graph, params, **extra):
+def start_node(graph, params, leave_out=(), **extra):
+    """sclam_node with every parameter of ``params`` but those named in ``leave_out``."""
     # The dataclass fields only: SclamParams also carries which keys its file set.
-    overrides = [Parameter(f.name, value=getattr(params, f.name)) for f in dataclasses.fields(params)]
+    overrides = [Parameter(f.name, value=getattr(params, f.name))
+                 for f in dataclasses.fields(params) if f.name not in leave_out]
     overrides += [Parameter(k, value=v) for k, v in extra.items()]
     return graph.add(SclamNode(context=graph.context, parameter_overrides=overrides))
 
@@ -498,8 +500,7 @@ def test_publish_tf_without_tf2_msgs_says_so_once(graph, monkeypatch):
         pytest.skip("tf2_msgs is importable here: the missing case cannot happen")
     logger = _Logger()
     monkeypatch.setattr(SclamNode, "get_logger", lambda self: logger)
-    node = graph.add(SclamNode(context=graph.context,
-                               parameter_overrides=[Parameter("publish_tf", value=True)]))
+    node = start_node(graph, SclamParams(), publish_tf=True)
     assert node.tf is None
     graph.subscribe(Odometry, "/sclam/odom")
     pub = graph.tester.create_publisher(JointState, "/joint_states", 100)
@@ -600,3 +601,117 @@ def test_node_reads_the_base_odometry_instead_of_joint_states(graph, tmp_path):
     start = pose(inputs[0])
     for given, answer in zip(inputs, answers):
         np.testing.assert_allclose(pose(answer), se2.between(pose(given), start), atol=1e-9)
+
+
+# --- zero configuration from the live /robot_description ------------------------------------
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def _publish_description(graph, urdf):
+    """/robot_description as robot_state_publisher publishes it: once, latched."""
+    pub = graph.tester.create_publisher(String, "/robot_description", LATCHED)
+    pub.publish(String(data=urdf))
+    return pub
+
+
+def _renamed(msg, names):
+    return JointState(header=msg.header, name=names, position=msg.position,
+                      velocity=msg.velocity, effort=msg.effort)
+
+
+def test_node_reads_what_its_parameters_leave_out_from_the_robot_description(graph, recording):
+    """Wheel joints, radii, wheel base and laser mount left out of the parameters come from
+    the latched /robot_description (the URDF the simulator writes, its joints renamed); what
+    arrives before it is counted as waiting, not used; then the node calibrates."""
+    from sclam_ros.ros.description import INFERABLE_KEYS
+    from sclam_ros.sim.description import robot_urdf
+
+    params = recording["params"]
+    nominal = {"wheel_radius_left": 0.1234, "wheel_radius_right": 0.1245, "wheel_base": 0.5678,
+               "laser_x": 0.21, "laser_y": -0.034, "laser_yaw": 0.056}
+    joints = ["wheel_l", "wheel_r"]
+    urdf = (robot_urdf("testbot", nominal).replace("left_wheel_joint", joints[0])
+            .replace("right_wheel_joint", joints[1]))
+    node = start_node(graph, params, leave_out=INFERABLE_KEYS)
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    assert node.calibrator is None and not node.has_parameter("wheel_base")
+    messages = [(t, _renamed(m, joints) if t == params.joint_states_topic else m)
+                for t, m in recording["messages"][:300]]
+    first_scan = next(i for i, (t, _) in enumerate(messages) if t == params.scan_topic)
+    assert first_scan > 0
+    feeder = Feeder(graph, node, params)
+    feeder.feed(messages[:first_scan])  # joint states only: no description yet
+    values = wait_diagnostics(graph, lambda v: v["joint_states_received"] == str(first_scan),
+                              "the joint states counted")
+    assert values["rejected_waiting_for_description"] == str(first_scan)
+    assert values["odom_unanswered_waiting_for_description"] == str(first_scan)
+    assert values["robot_description_errors"] == "0"
+
+    _publish_description(graph, urdf)
+    # The wheels are read; the laser's mount waits for a scan to name its frame.
+    wait_for(lambda: node.description.read_one, what="the description")
+    assert node.calibrator is None
+    feeder.feed(messages[first_scan:])
+    assert node.calibrator is not None
+    got = {k: node.get_parameter(k).value for k in INFERABLE_KEYS}
+    expected = {"left_wheel_joint": joints[0], "right_wheel_joint": joints[1], **nominal}
+    assert got == {k: pytest.approx(v, abs=1e-6) if isinstance(v, float) else v
+                   for k, v in expected.items()}
+    assert node.calibrator.params.calibration() == pytest.approx(nominal, abs=1e-6)
+    values = wait_diagnostics(
+        graph, lambda v: v["scans_received"] == str(len(messages) - len(
+            [t for t, _ in messages if t == params.joint_states_topic])), "every scan counted")
+    assert values["rejected_waiting_for_description"] == str(first_scan)  # none since
+    assert int(values["odom_published"]) == len(
+        [t for t, _ in messages if t == params.joint_states_topic]) - first_scan
+    assert "odom_unanswered_joint_state_missing_joint" not in values
+
+
+def test_a_description_without_wheels_is_a_counted_error(graph, recording, monkeypatch):
+    """A description without wheel joints: one error line, the node keeps running without
+    calibrating, /diagnostics says why (ERROR) and counts it; its inputs are counted."""
+    logger = _Logger()
+    monkeypatch.setattr(SclamNode, "get_logger", lambda self: logger)
+    params = recording["params"]
+    node = start_node(graph, params, leave_out=("wheel_radius_left", "wheel_base"))
+    graph.subscribe(DiagnosticArray, "/diagnostics")
+    _publish_description(graph, '<robot name="box"><link name="base_link"/></robot>')
+    values = wait_diagnostics(graph, lambda v: v["robot_description_errors"] == "1",
+                              "the error counted")
+    status = graph.messages("/diagnostics")[-1].status[0]
+    assert status.level == DiagnosticStatus.ERROR
+    assert "no two wheel joints" in status.message
+    errors = [text for level, text in logger.lines if level == "error"]
+    assert len(errors) == 1 and "no two wheel joints" in errors[0] and "\n" not in errors[0]
+    assert "(--params)" not in errors[0]
+    Feeder(graph, node, params).feed(recording["messages"][:20])
+    values = wait_diagnostics(graph, lambda v: v["joint_states_received"] != "0"
+                              and int(v["rejected_waiting_for_description"]) == 20, "inputs")
+    assert node.calibrator is None
+    response = graph.call(Trigger, "/sclam/save_calibration", Trigger.Request())
+    assert not response.success and "no two wheel joints" in response.message
+
+
+def test_a_laser_the_description_does_not_place_keeps_the_parameters(graph, recording,
+                                                                     monkeypatch):
+    """The laser's mount left out and not in the description: one warning naming the fix,
+    and the node calibrates from the parameters' values (it reads no /tf_static)."""
+    from sclam_ros.ros.description import INFERABLE_KEYS
+    from sclam_ros.sim.description import robot_urdf
+
+    logger = _Logger()
+    monkeypatch.setattr(SclamNode, "get_logger", lambda self: logger)
+    params = recording["params"]
+    urdf = robot_urdf("testbot", params.calibration()).replace('"laser"', '"lidar"')
+    node = start_node(graph, params, leave_out=INFERABLE_KEYS)
+    _publish_description(graph, urdf)
+    wait_for(lambda: node.description.read_one, what="the description")
+    Feeder(graph, node, params).feed(recording["messages"][:40])
+    assert node.calibrator is not None
+    assert [node.get_parameter(k).value for k in ("laser_x", "laser_y", "laser_yaw")] == [0.0] * 3
+    assert node.get_parameter("wheel_base").value == pytest.approx(params.wheel_base, abs=1e-6)
+    warnings = [text for level, text in logger.lines if level in ("warn", "warning")
+                and "laser's mount" in text]
+    assert len(warnings) == 1 and "set laser_x, laser_y and laser_yaw" in warnings[0]

@@ -9,13 +9,15 @@
 - the laser's mount from --urdf, else /tf_static, else /robot_description.
 
 What cannot be inferred is an InferenceError naming the missing piece and the fix.
+sclam_node infers the wheels and the laser's mount it is not given from the live
+/robot_description with the same functions (description_wheels, description_laser_mount).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 
-from sclam_ros.core.params import SclamParams
+from sclam_ros.core.params import LASER_KEYS, SclamParams
 from sclam_ros.io import bag
 from sclam_ros.io.recording import (GROUND_TRUTH_TOPIC, JOINT_STATE_TYPE, LASER_SCAN_TYPE,
                                     ODOMETRY_TYPE, scan_frame_id)
@@ -25,6 +27,9 @@ from sclam_ros.io.urdf import frame_tree, load_robot, urdf_laser_mount
 ROBOT_DESCRIPTION_TOPIC = "/robot_description"
 STRING_TYPE = "std_msgs/msg/String"
 FIX = "or give them in a parameters file (--params)"
+# What a robot description gives of the wheels, in SclamParams' names.
+WHEEL_KEYS = ("left_wheel_joint", "right_wheel_joint", "wheel_radius_left",
+              "wheel_radius_right", "wheel_base")
 
 
 class InferenceError(ValueError):
@@ -99,6 +104,37 @@ def _wheels(robot, tree, base, source):
     return left[0], right[0], left[1], right[1], float(left[2][1] - right[2][1])
 
 
+def description_base(tree) -> str:
+    """The base frame of a frame_tree: base_link by REP-105, else the description's root link."""
+    edges, _, links = tree
+    roots = [name for name in links if name not in edges]
+    return "base_link" if "base_link" in links else (roots[0] if roots else links[0])
+
+
+def _wheels_line(wheels, source, base) -> str:
+    left, right, r_left, r_right, wheel_base = (wheels[k] for k in WHEEL_KEYS)
+    return (f"wheel joints {left} (left), {right} (right) in {source}: radius "
+            f"{1e3 * r_left:.1f} mm and {1e3 * r_right:.1f} mm (their cylinders), "
+            f"separation {1e3 * wheel_base:.1f} mm, on {base}")
+
+
+def description_wheels(robot, tree, base, source) -> tuple:
+    """({WHEEL_KEYS: value}, a line saying so) of a yourdfpy Robot and its frame_tree, the
+    wheels placed on ``base``; InferenceError if it has not two wheel joints, one each side."""
+    wheels = dict(zip(WHEEL_KEYS, _wheels(robot, tree, base, source)))
+    return wheels, _wheels_line(wheels, source, base)
+
+
+def description_laser_mount(source, base, laser, tree) -> tuple:
+    """({LASER_KEYS: value}, a line saying so) of the chain from ``base`` to the scan's frame
+    ``laser`` in the frame_tree of the description ``source``; LaserMountError if it holds none."""
+    mount = urdf_laser_mount(source, base, laser, tree=tree)
+    x, y, yaw = (float(v) for v in mount.pose)
+    return dict(zip(LASER_KEYS, (x, y, yaw))), (
+        f"nominal laser pose from {mount.describe()}: x = {1e3 * x:.1f} mm, "
+        f"y = {1e3 * y:.1f} mm, yaw = {math.degrees(yaw):.2f} deg")
+
+
 def _joint_state_topic(path, info, joints):
     """The JointState topic whose first message names both wheel joints, or None."""
     for topic in _topics_of_type(info, JOINT_STATE_TYPE):
@@ -142,9 +178,7 @@ def infer_params(path, urdf=None) -> tuple:
     tree = frame_tree(robot)
     links = tree[2]
     lines = [f"robot description: {source} ({robot.name}, {len(links)} links)"]
-    # The base frame: base_link by REP-105, else the description's root link.
-    roots = [name for name in links if name not in tree[0]]
-    base = "base_link" if "base_link" in links else (roots[0] if roots else links[0])
+    base = description_base(tree)
     left, right, r_left, r_right, wheel_base = _wheels(robot, tree, base, source)
     joint_states = _joint_state_topic(path, info, (left, right))
     odometry, child = (None, None) if joint_states else _odometry_topic(path, info)
@@ -174,9 +208,8 @@ def infer_params(path, urdf=None) -> tuple:
         lines.append(f"wheels: {odometry} (nav_msgs/Odometry of {base}): no JointState of "
                      f"{left} and {right}, so the base's odometry, assumed computed with the "
                      "description's radii and wheel separation")
-    lines.append(f"wheel joints {left} (left), {right} (right) in {source}: radius "
-                 f"{1e3 * r_left:.1f} mm and {1e3 * r_right:.1f} mm (their cylinders), "
-                 f"separation {1e3 * wheel_base:.1f} mm, on {base}")
+    lines.append(_wheels_line(dict(zip(WHEEL_KEYS, (left, right, r_left, r_right, wheel_base))),
+                              source, base))
     params, laser_line = _laser_mount(path, info, params, urdf, robot, tree, source)
     lines.append(laser_line)
     return params, lines
@@ -190,14 +223,11 @@ def _laser_mount(path, info, params, urdf, robot, tree, source):
         return updated, line
     laser = scan_frame_id(path, params.scan_topic)
     try:
-        mount = urdf_laser_mount(source, params.base_frame, laser, tree=tree)
+        mount, line = description_laser_mount(source, params.base_frame, laser, tree)
     except LaserMountError as exc:
         raise InferenceError(f"the laser's mount: neither /tf_static nor {exc}: set laser_x, "
                              "laser_y and laser_yaw in a parameters file (--params)") from None
-    x, y, yaw = (float(v) for v in mount.pose)
-    updated = dataclasses.replace(params, laser_x=x, laser_y=y, laser_yaw=yaw).validate()
-    return updated, (f"nominal laser pose from {mount.describe()}: x = {1e3 * x:.1f} mm, "
-                     f"y = {1e3 * y:.1f} mm, yaw = {math.degrees(yaw):.2f} deg")
+    return dataclasses.replace(params, **mount).validate(), line
 
 
 def inferred_params_header(bag_path, lines) -> str:

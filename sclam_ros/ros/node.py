@@ -62,10 +62,23 @@ Parameters
   importable (ros/tf.py); without it the node says so once and publishes no TF.
   At runtime ``window_distance``, ``wheel_noise``, ``lateral_noise``, ``odom_frame``,
   ``base_frame`` and ``calibration_file`` can be changed; the others are read-only.
+Zero configuration (ros/description.py)
+  Each of ``left_wheel_joint``, ``right_wheel_joint``, ``wheel_radius_left``,
+  ``wheel_radius_right``, ``wheel_base``, ``laser_x``, ``laser_y``, ``laser_yaw`` that the
+  parameters (files, ``-p``) do not set is read from the latched ``/robot_description``
+  (std_msgs/String, reliable, transient local) as ``sclam calibrate BAG`` reads it
+  (io/zero_config.py), the laser's mount as the chain from ``base_frame`` to the first scan's
+  frame; the parameter is declared then, with that value. Until then nothing is calibrated
+  and every input is counted as ``waiting_for_description`` (rejected and, for the wheels,
+  ``odom_unanswered``). A description without the two wheel joints is one error line, an
+  ERROR in /diagnostics and ``robot_description_errors`` counted; a later one is read again.
+  A laser the description does not place is one warning naming the fix and the parameters'
+  values are kept: the node does not read /tf_static.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import math
 import sys
@@ -86,7 +99,7 @@ from rclpy.utilities import remove_ros_args
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, LaserScan
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 from std_srvs.srv import Trigger
 
 from sclam_ros.core.inputs import Rejections
@@ -108,6 +121,7 @@ from sclam_ros.io.messages import (
 )
 from sclam_ros.frontend.odometry_wheels import WheelsFromOdometry
 from sclam_ros.online.odometry import OdometryIntegrator
+from sclam_ros.ros.description import FromDescription, left_out_keys
 from sclam_ros.ros.tf import TfBroadcaster
 from sclam_ros.online.process import CalibratorProcess
 from sclam_ros.online.status import (
@@ -125,6 +139,8 @@ RUNTIME_PARAMETERS = {
     "calibration_file",
 }
 WARN_THROTTLE_S = 5.0
+# The reason an input is dropped before the calibration has its wheel geometry.
+WAITING = "waiting_for_description"
 
 
 def _yaw_quaternion(q, yaw):
@@ -155,7 +171,9 @@ SCAN_QOS = QoSProfile(depth=50, reliability=qos_profile_sensor_data.reliability,
 class SclamNode(Node):
     def __init__(self, node_name: str = NODE_NAME, **kwargs):
         super().__init__(node_name, **kwargs)
-        self._declare_parameters()
+        # The wheel geometry and laser mount the parameters leave out: declared once the
+        # robot description gives them (ros/description.py), with these descriptors.
+        self._undeclared = self._declare_parameters()
         self._warn_unknown_parameters()
         self.params = self._read_params()
         self.calibration_file = self.get_parameter("calibration_file").value
@@ -165,12 +183,12 @@ class SclamNode(Node):
         # joint_states_received.
         self.unanswered = Rejections()
         self.odom_published = 0
-        self.odometry = OdometryIntegrator(self.params, rejections=self.unanswered)
         # The wheel input: the base's odometry turned back into wheel rotations, or JointState.
         self.wheel_input = "odometry" if self.params.odometry_topic else "joint_states"
-        self.wheels_from_odometry = (WheelsFromOdometry(self.params)
-                                     if self.params.odometry_topic else None)
         self.received = {self.wheel_input: 0, "scan": 0}
+        self.calibrator = None  # until the parameters are complete (_start)
+        self.description = (FromDescription(self._undeclared, self.params.base_frame)
+                            if self._undeclared else None)
         self.estimates = 0
 
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -181,7 +199,7 @@ class SclamNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.tf = (TfBroadcaster.create(self) if self.get_parameter("publish_tf").value
                    else None)
-        if self.wheels_from_odometry is not None:
+        if self.params.odometry_topic:
             self.create_subscription(Odometry, self.params.odometry_topic,
                                      self._on_wheel_odometry, 200)
             self.get_logger().info(
@@ -193,15 +211,36 @@ class SclamNode(Node):
             self.create_subscription(JointState, self.params.joint_states_topic,
                                      self._on_joint_state, 200)
         self.create_subscription(LaserScan, self.params.scan_topic, self._on_scan, SCAN_QOS)
-        # Last: its reader thread publishes through the publishers made above.
-        self.calibrator = CalibratorProcess(self.params, self._publish_estimate,
-                                            self._calibrator_failed)
         self.create_service(Trigger, "~/reset_window", self._reset_window)
         self.create_service(Trigger, "~/reset_calibration", self._reset_calibration)
         self.create_service(Trigger, "~/save_calibration", self._save_calibration)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         # Wall clock: diagnostics keep coming when sim time stands still.
         self.create_timer(1.0, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        if self.description is None:
+            self._start({})
+            return
+        # As robot_state_publisher publishes it: latched, so a late subscriber gets it.
+        self.create_subscription(String, self.description.source, self._on_description, latched)
+        self.get_logger().info(
+            f"not set in the parameters: {', '.join(sorted(self._undeclared))}: waiting for "
+            f"{self.description.source} to read them from (inputs until then are counted "
+            f"as {WAITING}, not used)")
+
+    def _start(self, inferred):
+        """Declare the parameters left out (with the ``inferred`` values, else the
+        defaults) and start calibrating."""
+        for name, descriptor in sorted(self._undeclared.items()):
+            self.declare_parameter(name, inferred.get(name, getattr(self.params, name)),
+                                   descriptor)
+        self._undeclared = {}
+        self.params = self._read_params()
+        self.odometry = OdometryIntegrator(self.params, rejections=self.unanswered)
+        self.wheels_from_odometry = (WheelsFromOdometry(self.params)
+                                     if self.params.odometry_topic else None)
+        # Last: its reader thread publishes through the node's publishers.
+        self.calibrator = CalibratorProcess(self.params, self._publish_estimate,
+                                            self._calibrator_failed)
         # Everything allocated so far (rclpy, numpy, scipy, KISS-ICP, the node) lives as
         # long as the process: keep it out of the cyclic collector's full passes. Without
         # this a full collection walks it all and stalls callbacks and solver
@@ -212,12 +251,43 @@ class SclamNode(Node):
             f"{self.params.right_wheel_joint}) and {self.params.scan_topic}"
         )
 
+    def _on_description(self, msg: String):
+        if self.calibrator is not None:
+            return  # the parameters are read-only: a new description needs a restart
+        if not self.description.read(msg.data):
+            self.get_logger().error(f"cannot calibrate: {self.description.error}")
+            return
+        self._start_from_description()
+
+    def _start_from_description(self):
+        found = self.description.values(self.laser_frame)
+        if found is None:
+            return  # no usable description yet, or no scan to name the laser's frame
+        values, line, warning = found
+        try:
+            dataclasses.replace(self.params, **values).validate()
+        except ParamsError as exc:  # a cylinder no wheel has
+            self.description.refuse(f"{self.description.source}: {exc}")
+            self.get_logger().error(f"cannot calibrate: {self.description.error}")
+            return
+        self.get_logger().info(f"from {line}")
+        if warning:
+            self.get_logger().warn(warning)
+        self._start(values)
+
     def destroy_node(self):
-        self.calibrator.stop()
+        if self.calibrator is not None:
+            self.calibrator.stop()
         return super().destroy_node()
 
     # --- parameters ---------------------------------------------------------------------
-    def _declare_parameters(self):
+    def _declare_parameters(self) -> dict:
+        """Declare the parameters, but for the wheel geometry and laser mount the parameters
+        leave out: {name: descriptor} of those."""
+        # (_parameter_overrides: the parameters files' and -p values; no public accessor.)
+        left_out = left_out_keys({name: parameter.value
+                                  for name, parameter in self._parameter_overrides.items()})
+        undeclared = {}
         for f in fields(SclamParams):
             unit = f.metadata.get("unit", "")
             description = f.metadata.get("doc", "") + (f" [{unit}]" if unit else "")
@@ -229,7 +299,10 @@ class SclamNode(Node):
                 read_only=read_only,
                 dynamic_typing=not isinstance(f.default, str),
             )
-            self.declare_parameter(f.name, f.default, descriptor)
+            if f.name in left_out:
+                undeclared[f.name] = descriptor
+            else:
+                self.declare_parameter(f.name, f.default, descriptor)
         self.declare_parameter(
             "calibration_file", DEFAULT_CALIBRATION_FILE,
             ParameterDescriptor(description="where ~/save_calibration writes the parameters "
@@ -244,6 +317,7 @@ class SclamNode(Node):
                                             "(read-only: restart the node to change)",
                                 read_only=True),
         )
+        return undeclared
 
     def _warn_unknown_parameters(self):
         # rclpy keeps a parameters file's values for this node until they are declared and
@@ -255,7 +329,10 @@ class SclamNode(Node):
                 f"unknown parameter(s) ignored: {', '.join(map(with_suggestion, unknown))}")
 
     def _read_params(self) -> SclamParams:
-        raw = {f.name: self.get_parameter(f.name).value for f in fields(SclamParams)}
+        # None: an empty list in a parameters file, which rcl reads as NOT_SET: the default.
+        raw = {f.name: self.get_parameter(f.name).value for f in fields(SclamParams)
+               if self.has_parameter(f.name)}
+        raw = {name: value for name, value in raw.items() if value is not None}
         return SclamParams.from_dict(raw, source=f"parameters of node {self.get_name()}")
 
     def _on_set_parameters(self, parameters) -> SetParametersResult:
@@ -273,12 +350,15 @@ class SclamNode(Node):
         for p in parameters:
             if p.name == "calibration_file":
                 self.calibration_file = p.value
-            elif p.name == "window_distance":
-                self.calibrator.set_window_distance(float(p.value))
             elif p.name in defaults:
                 value = p.value if isinstance(defaults[p.name], str) else float(p.value)
                 setattr(self.params, p.name, value)
-                self.calibrator.set_param(p.name, value)
+                if self.calibrator is None:
+                    continue  # it starts with self.params
+                if p.name == "window_distance":
+                    self.calibrator.set_window_distance(value)
+                else:
+                    self.calibrator.set_param(p.name, value)
         return SetParametersResult(successful=True)
 
     # --- input --------------------------------------------------------------------------
@@ -300,6 +380,10 @@ class SclamNode(Node):
         """One wheel-input message: ``wheel_angles()`` gives (stamp, left, right) or raises
         MessageRejected; answered on ~/odom and handed to the calibrator."""
         self.received[self.wheel_input] += 1
+        if self.calibrator is None:
+            self.unanswered.add(WAITING)
+            self._reject(WAITING, self._waiting_for())
+            return
         try:
             stamp, left, right = wheel_angles()
         except MessageRejected as exc:
@@ -320,6 +404,11 @@ class SclamNode(Node):
         try:
             scan = laser_scan_to_scan(msg)
             self.laser_frame = scan.frame_id
+            if self.calibrator is None:
+                self._start_from_description()  # when it waits for the laser's frame
+            if self.calibrator is None:
+                self._reject(WAITING, self._waiting_for())
+                return
             check_scan(scan)  # the bag path's gate too (io/recording.py)
             self.calibrator.add_scan(scan)
         except MessageRejected as exc:  # bad geometry, empty, bad stamp: counted under its reason
@@ -388,21 +477,45 @@ class SclamNode(Node):
         wheels.data = wheel_parameters_data(estimate)
         self.wheel_pub.publish(wheels)
 
+    def _waiting_for(self) -> str:
+        """What the node waits for before it calibrates."""
+        if self.description.error:
+            return f"cannot calibrate: {self.description.error}"
+        if self.description.read_one:
+            return f"waiting for a scan on {self.params.scan_topic} to name the laser's frame"
+        return (f"waiting for {self.description.source} to read "
+                f"{', '.join(sorted(self._undeclared))} from")
+
+    def _waiting_status(self):
+        """(level, message, values) before the calibration has its wheel geometry."""
+        values = {f"{name}_received": n for name, n in self.received.items() if name != "scan"}
+        values["scans_received"] = self.received["scan"]
+        values["rejected_total"] = self.rejections.total()
+        for reason, n in sorted(self.rejections.counts.items()):
+            values[f"rejected_{reason}"] = n
+        level = DiagnosticStatus.ERROR if self.description.error else DiagnosticStatus.WARN
+        return level, self._waiting_for(), values
+
     def diagnostic_status(self) -> DiagnosticStatus:
-        rejections = Rejections(self.rejections.counts + self.calibrator.rejections.counts)
-        level, message, values = diagnostic_status(self.calibrator.status, self.params,
-                                                   self.received, rejections,
-                                                   self.calibrator.config)
-        # Messages handed to the calibrator process and not yet taken: stays near 0 when it
-        # keeps up with the sensors.
-        values["calibrator_backlog"] = self.calibrator.backlog
+        if self.calibrator is None:
+            level, message, values = self._waiting_status()
+        else:
+            rejections = Rejections(self.rejections.counts + self.calibrator.rejections.counts)
+            level, message, values = diagnostic_status(self.calibrator.status, self.params,
+                                                       self.received, rejections,
+                                                       self.calibrator.config)
+            level = DiagnosticStatus.OK if level == OK else DiagnosticStatus.WARN
+            # Messages handed to the calibrator process and not yet taken: stays near 0 when
+            # it keeps up with the sensors.
+            values["calibrator_backlog"] = self.calibrator.backlog
+            if not self.calibrator.alive:
+                level = DiagnosticStatus.ERROR
+                message = self.calibrator.failure or "calibrator process not running"
         values["odom_published"] = self.odom_published
         for reason, n in sorted(self.unanswered.counts.items()):
             values[f"odom_unanswered_{reason}"] = n
-        level = DiagnosticStatus.OK if level == OK else DiagnosticStatus.WARN
-        if not self.calibrator.alive:
-            level = DiagnosticStatus.ERROR
-            message = self.calibrator.failure or "calibrator process not running"
+        if self.description is not None:
+            values["robot_description_errors"] = self.description.errors
         status = DiagnosticStatus(level=level, name=f"{self.get_name()}: calibration",
                                   message=message, hardware_id=self.get_name())
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
@@ -415,13 +528,23 @@ class SclamNode(Node):
         self.diag_pub.publish(array)
 
     # --- services -----------------------------------------------------------------------
+    def _not_calibrating(self, response) -> bool:
+        """True, with the response saying why, while the node waits for the description."""
+        if self.calibrator is None:
+            response.success, response.message = False, f"not calibrating: {self._waiting_for()}"
+        return self.calibrator is None
+
     def _reset_window(self, request, response):
+        if self._not_calibrating(response):
+            return response
         self.calibrator.reset_window()
         response.success, response.message = True, "window cleared"
         self.get_logger().info("window reset")
         return response
 
     def _reset_calibration(self, request, response):
+        if self._not_calibrating(response):
+            return response
         self.calibrator.reset_calibration()
         response.success, response.message = True, "calibration back to nominal"
         self.get_logger().info("calibration reset to nominal")
@@ -435,6 +558,8 @@ class SclamNode(Node):
         return self.params.with_calibration(values)
 
     def _save_calibration(self, request, response):
+        if self._not_calibrating(response):
+            return response
         status = self.calibrator.status  # one reference: values and flags of one moment
         unobserved = [k for k in CALIBRATION_KEYS if not status.observable[k]]
         kept = ""
