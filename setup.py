@@ -47,7 +47,7 @@ setup(
     entry_points={
         "console_scripts": [
             "sclam = sclam_ros.cli.main:main",
-            "sclam_node = sclam_ros.ros.node:main",
+            "sclam_node = sclam_ros.ros.main:main",
         ],
     },
 )

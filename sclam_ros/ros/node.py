@@ -77,25 +77,17 @@ Zero configuration (ros/description.py)
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import gc
-import math
-import sys
 from dataclasses import fields
-from typing import Optional
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.time import Time
-from rclpy.executors import ExternalShutdownException
-from rclpy.impl.implementation_singleton import rclpy_implementation
-from rclpy.utilities import remove_ros_args
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import JointState, LaserScan
@@ -109,8 +101,6 @@ from sclam_ros.core.params import (
     ParamsError,
     SclamParams,
     check_parameter_value,
-    read_yaml_document,
-    with_suggestion,
 )
 from sclam_ros.io.messages import (
     MessageRejected,
@@ -121,7 +111,9 @@ from sclam_ros.io.messages import (
 )
 from sclam_ros.frontend.odometry_wheels import WheelsFromOdometry
 from sclam_ros.online.odometry import OdometryIntegrator
-from sclam_ros.ros.description import FromDescription, left_out_keys
+from sclam_ros.ros.description import FromDescription
+from sclam_ros.ros.planar import covariance36, set_yaw
+from sclam_ros.ros.parameters import declare_parameters, read_params, warn_unknown_parameters
 from sclam_ros.ros.tf import TfBroadcaster
 from sclam_ros.online.process import CalibratorProcess
 from sclam_ros.online.status import (
@@ -132,28 +124,9 @@ from sclam_ros.online.status import (
     wheel_parameters_data,
 )
 
-DEFAULT_CALIBRATION_FILE = "sclam_calibration.yaml"
-# Parameters whose new value the node can use without a restart.
-RUNTIME_PARAMETERS = {
-    "window_distance", "wheel_noise", "lateral_noise", "odom_frame", "base_frame",
-    "calibration_file",
-}
 WARN_THROTTLE_S = 5.0
 # The reason an input is dropped before the calibration has its wheel geometry.
 WAITING = "waiting_for_description"
-
-
-def _yaw_quaternion(q, yaw):
-    q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
-
-
-def _covariance36(cov3) -> list:
-    """A 3×3 (x, y, yaw) covariance in the x, y, yaw slots of a row-major 6×6 (in plain
-    Python: ~/odom builds two per encoder message)."""
-    out = [0.0] * 36
-    for row, values in zip((0, 6, 30), np.asarray(cov3, float).tolist()):
-        out[row], out[row + 1], out[row + 5] = values
-    return out
 
 
 # Sensor-data QoS (best effort: matches every laser driver) with a history of about a
@@ -173,9 +146,9 @@ class SclamNode(Node):
         super().__init__(node_name, **kwargs)
         # The wheel geometry and laser mount the parameters leave out: declared once the
         # robot description gives them (ros/description.py), with these descriptors.
-        self._undeclared = self._declare_parameters()
-        self._warn_unknown_parameters()
-        self.params = self._read_params()
+        self._undeclared = declare_parameters(self)
+        warn_unknown_parameters(self)
+        self.params = read_params(self)
         self.calibration_file = self.get_parameter("calibration_file").value
         self.laser_frame = None  # header.frame_id of the scans, once one came
         self.rejections = Rejections()  # message conversion; the calibrator counts its own
@@ -234,7 +207,7 @@ class SclamNode(Node):
             self.declare_parameter(name, inferred.get(name, getattr(self.params, name)),
                                    descriptor)
         self._undeclared = {}
-        self.params = self._read_params()
+        self.params = read_params(self)
         self.odometry = OdometryIntegrator(self.params, rejections=self.unanswered)
         self.wheels_from_odometry = (WheelsFromOdometry(self.params)
                                      if self.params.odometry_topic else None)
@@ -281,60 +254,6 @@ class SclamNode(Node):
         return super().destroy_node()
 
     # --- parameters ---------------------------------------------------------------------
-    def _declare_parameters(self) -> dict:
-        """Declare the parameters, but for the wheel geometry and laser mount the parameters
-        leave out: {name: descriptor} of those."""
-        # (_parameter_overrides: the parameters files' and -p values; no public accessor.)
-        left_out = left_out_keys({name: parameter.value
-                                  for name, parameter in self._parameter_overrides.items()})
-        undeclared = {}
-        for f in fields(SclamParams):
-            unit = f.metadata.get("unit", "")
-            description = f.metadata.get("doc", "") + (f" [{unit}]" if unit else "")
-            read_only = f.name not in RUNTIME_PARAMETERS
-            # Numbers accept integers too (``ticks_per_revolution: 0`` in a YAML); the type is
-            # checked by hand so a bad value gets a reason, not an exception.
-            descriptor = ParameterDescriptor(
-                description=description + (" (read-only: restart the node to change)" if read_only else ""),
-                read_only=read_only,
-                dynamic_typing=not isinstance(f.default, str),
-            )
-            if f.name in left_out:
-                undeclared[f.name] = descriptor
-            else:
-                self.declare_parameter(f.name, f.default, descriptor)
-        self.declare_parameter(
-            "calibration_file", DEFAULT_CALIBRATION_FILE,
-            ParameterDescriptor(description="where ~/save_calibration writes the parameters "
-                                            "YAML with the current estimate"),
-        )
-        self.declare_parameter(
-            "publish_tf", False,
-            ParameterDescriptor(description="broadcast odom → base_frame (/tf) and base_frame → "
-                                            "the scan's frame (/tf_static) with the calibration; "
-                                            "off when another node (a driver, "
-                                            "robot_state_publisher) already does "
-                                            "(read-only: restart the node to change)",
-                                read_only=True),
-        )
-        return undeclared
-
-    def _warn_unknown_parameters(self):
-        # rclpy keeps a parameters file's values for this node until they are declared and
-        # ignores the rest: a misspelt nominal value would silently stay at its default.
-        # (_parameter_overrides: rclpy has no public accessor for them.)
-        unknown = sorted(n for n in self._parameter_overrides if not self.has_parameter(n))
-        if unknown:
-            self.get_logger().warn(
-                f"unknown parameter(s) ignored: {', '.join(map(with_suggestion, unknown))}")
-
-    def _read_params(self) -> SclamParams:
-        # None: an empty list in a parameters file, which rcl reads as NOT_SET: the default.
-        raw = {f.name: self.get_parameter(f.name).value for f in fields(SclamParams)
-               if self.has_parameter(f.name)}
-        raw = {name: value for name, value in raw.items() if value is not None}
-        return SclamParams.from_dict(raw, source=f"parameters of node {self.get_name()}")
-
     def _on_set_parameters(self, parameters) -> SetParametersResult:
         defaults = {f.name: f.default for f in fields(SclamParams)}
         for p in parameters:
@@ -438,13 +357,13 @@ class SclamNode(Node):
         pose = self.odometry.pose
         odom.pose.pose.position.x = float(pose[0])
         odom.pose.pose.position.y = float(pose[1])
-        _yaw_quaternion(odom.pose.pose.orientation, float(pose[2]))
-        odom.pose.covariance = _covariance36(self.odometry.covariance(k_cov))
+        set_yaw(odom.pose.pose.orientation, float(pose[2]))
+        odom.pose.covariance = covariance36(self.odometry.covariance(k_cov))
         twist = self.odometry.twist
         odom.twist.twist.linear.x = float(twist[0])
         odom.twist.twist.linear.y = float(twist[1])
         odom.twist.twist.angular.z = float(twist[2])
-        odom.twist.covariance = _covariance36(self.odometry.twist_cov)
+        odom.twist.covariance = covariance36(self.odometry.twist_cov)
         self.odom_pub.publish(odom)
         self.odom_published += 1
         if self.tf is not None:
@@ -460,8 +379,8 @@ class SclamNode(Node):
         laser.header.frame_id = self.params.base_frame
         laser.pose.pose.position.x = float(estimate.values["laser_x"])
         laser.pose.pose.position.y = float(estimate.values["laser_y"])
-        _yaw_quaternion(laser.pose.pose.orientation, float(estimate.values["laser_yaw"]))
-        laser.pose.covariance = _covariance36(np.asarray(estimate.covariance)[3:, 3:])
+        set_yaw(laser.pose.pose.orientation, float(estimate.values["laser_yaw"]))
+        laser.pose.covariance = covariance36(np.asarray(estimate.covariance)[3:, 3:])
         self.laser_pub.publish(laser)
         if self.tf is not None and self.laser_frame:
             self.tf.laser(laser.header.stamp, self.params.base_frame, self.laser_frame,
@@ -578,64 +497,3 @@ class SclamNode(Node):
         response.success, response.message = True, f"calibration written to {self.calibration_file}{kept}"
         self.get_logger().info(response.message)
         return response
-
-
-def _argument_parser() -> argparse.ArgumentParser:
-    """The node's own command line: only --help (everything else is a ROS argument)."""
-    listed = []
-    for f in fields(SclamParams):
-        default = f"{f.default!r} {f.metadata.get('unit', '')}".strip()
-        listed.append(f"  {f.name} = {default}: {f.metadata.get('doc', '')}")
-    return argparse.ArgumentParser(
-        prog="sclam_node", description=__doc__,
-        usage="sclam_node [-h] [--ros-args --params-file PARAMS.yaml [-p NAME:=VALUE ...]]",
-        epilog="parameters (defaults):\n" + "\n".join(listed),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-
-
-def _params_files(argv) -> list:
-    return [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == "--params-file"]
-
-
-def _refuse(exc) -> int:
-    """One line on stderr and exit status 2, as `sclam` does for input it cannot use."""
-    print(f"sclam_node: error: {' '.join(str(exc).split())}", file=sys.stderr)
-    return 2
-
-
-def main(args=None) -> int:
-    argv = sys.argv if args is None else list(args)
-    try:
-        # rcl reads the parameters files whenever it parses the arguments, and on bad YAML
-        # fails with an RCLError naming its C source lines: checked here first.
-        for path in _params_files(argv):
-            read_yaml_document(path)
-        # Before rclpy.init: --help starts nothing.
-        _argument_parser().parse_args(remove_ros_args(argv)[1:])
-        rclpy.init(args=argv)
-    except (ParamsError, rclpy_implementation.RCLError) as exc:
-        return _refuse(exc)
-    node: Optional[SclamNode] = None
-    try:
-        node = SclamNode()
-        rclpy.spin(node)
-    except ParamsError as exc:
-        return _refuse(exc)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except rclpy_implementation.RCLError:
-        # SIGINT shuts the context down; when that lands while the executor builds its
-        # wait set, spin raises RCLError ("context is not valid") instead of
-        # ExternalShutdownException (test_node's console-script test, once in CI).
-        if rclpy.ok():
-            raise
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -7,10 +7,10 @@ installs from: without it the node says so once and publishes no TF.
 """
 from __future__ import annotations
 
-import math
-
 from geometry_msgs.msg import TransformStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from sclam_ros.ros.planar import set_yaw
 
 try:
     from tf2_msgs.msg import TFMessage
@@ -30,8 +30,7 @@ def _transform(stamp, parent, child, pose) -> TransformStamped:
     tf.child_frame_id = child
     tf.transform.translation.x = float(pose[0])
     tf.transform.translation.y = float(pose[1])
-    tf.transform.rotation.z = math.sin(0.5 * float(pose[2]))
-    tf.transform.rotation.w = math.cos(0.5 * float(pose[2]))
+    set_yaw(tf.transform.rotation, float(pose[2]))
     return tf
 
 
