@@ -63,6 +63,8 @@ class NoiseConfig:
     max_factor: float = 100.0
     # |a| of log λ = b + a·z at most: a factor of e³ per standard deviation of the regressor
     max_slope: float = 3.0
+    # the scans' stamp jitter fitted into the model every effect is tested against (stamp_jitter.py)
+    stamp_jitter: bool = True
 
     @property
     def log_range(self) -> float:

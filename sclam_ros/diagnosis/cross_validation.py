@@ -45,6 +45,8 @@ class Models:
     regs: dict = field(default_factory=dict)
     edge_reg: np.ndarray = None
     config: DiagnoseConfig = field(default_factory=DiagnoseConfig)
+    # the scans' stamp error, in every model compared (stamp_jitter.py; None: not modelled)
+    jitter: object = None
     whole: dict = field(default_factory=dict)
     heldout: dict = field(default_factory=dict)
 
@@ -58,7 +60,8 @@ class Models:
 
     def _fit_noise(self, noise, fit, mech, edges):
         return fit_noise_effects(noise, fit, mech, self.inputs, edges, self.odo_cov,
-                                 self.config.noise.fit_rounds, self.config.noise.log_range)
+                                 self.config.noise.fit_rounds, self.config.noise.log_range,
+                                 self.jitter)
 
     def fit_whole(self, names):
         """(Fit of the mechanical effects, fitted noise effects, whole-run cost)."""
@@ -114,7 +117,8 @@ class Models:
                 fit = fit_effects(fold.train, mech) if mech else fold.train
                 if noise:
                     self._fit_noise(noise, fit, mech, fold.train_edges)
-                per_fold.append(edge_nll(fit, mech, self.inputs, fold.test, self.odo_cov, noise))
+                per_fold.append(edge_nll(fit, mech, self.inputs, fold.test, self.odo_cov, noise,
+                                         self.jitter))
             self.heldout[key] = np.concatenate(per_fold)
         return self.heldout[key]
 

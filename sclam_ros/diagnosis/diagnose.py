@@ -31,12 +31,13 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.diagnosis import identifiability, report as report_mod
 from sclam_ros.diagnosis.config import DiagnoseConfig
 from sclam_ros.diagnosis.cross_validation import Models, time_block_folds
-from sclam_ros.diagnosis.disagreement import OdometryCovariance
+from sclam_ros.diagnosis.disagreement import OdometryCovariance, disagreement
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.evidence import effect_value
 from sclam_ros.diagnosis.fitting import Fit, component_residuals, fit_effects, paired_edges
 from sclam_ros.diagnosis.regressors import regressors
 from sclam_ros.diagnosis.selection import stepwise_selection
+from sclam_ros.diagnosis.stamp_jitter import StampJitter, fit_jitter
 from sclam_ros.diagnosis.structure import name_structure, residual_tests, significant
 from sclam_ros.diagnosis.wall_map import WallMap
 
@@ -103,6 +104,12 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
                     time_block_folds(*fold_args, selection.noise_folds,
                                      blocks_per_fold=selection.noise_fold_blocks),
                     regs, edge_reg, config)
+    if config.noise.stamp_jitter:
+        unfitted = StampJitter(data.wheel_speeds)
+        sigma = fit_jitter(disagreement(base, [], inputs, edges, odo_cov, unfitted),
+                           config.noise.log_range)
+        models.jitter = StampJitter(data.wheel_speeds, sigma)
+        say(f"scan stamp jitter: {1e3 * sigma:.2f} ms (1σ, held in every model compared)")
     n_edges = len(inputs.odo_from) + len(inputs.laser_from)
     selected, evidence, pairs = stepwise_selection(models, names, n_edges, say)
     base_error = float(np.mean(models.heldout_nll([])))
@@ -116,6 +123,8 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
     shift = identifiability.calibration_shift(base, ext, CALIBRATION_KEYS) if selected else {}
     report = {
         "base": report_mod.model_summary(base, base_error),
+        # s, 1σ of the scans' timing noise held in every model (stamp_jitter.py); null: not modelled
+        "timing_noise_s": None if models.jitter is None else models.jitter.sigma,
         "extended": report_mod.model_summary(ext, ext_error),
         "error_metric": report_mod.error_metric(selection),
         "effects": report_mod.effects_json(names, evidence, selected, final),

@@ -4,11 +4,13 @@ effects.
 
     d = (l⁻¹ ∘ K(u; k, effects) ∘ l) ⊖ z',   NLL = 0.5·(ρ(dᵀΣ⁻¹d) + ln det Σ)
 
-Σ the fitted odometry + scan-match covariance in the laser frame, ρ the graph's Cauchy
-kernel (the one that weighs the scan matches in the fit).
+Σ the fitted odometry + scan-match covariance in the laser frame plus the scans' stamp
+jitter (stamp_jitter.py), ρ the graph's Cauchy kernel (the one that weighs the scan matches
+in the fit).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +20,7 @@ from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor
 from sclam_ros.diagnosis.fitting import Edges, Fit
 from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise, level_profiled_nll
+from sclam_ros.diagnosis.stamp_jitter import laser_twists, stamp_covariance
 
 
 @dataclass
@@ -28,12 +31,19 @@ class Disagreement:
     d: np.ndarray  # (m, 3) laser frame
     wheel_cov: np.ndarray  # (m, 3, 3) J Σ_w Jᵀ, the wheels' slip (what noise effects scale)
     fixed_cov: np.ndarray  # (m, 3, 3) the scan match's share and the odometry's other parts
+    stamp_cov: np.ndarray = None  # (m, 3, 3) per s² of the scans' stamp error (None: not modelled)
+    stamp_sigma: float = 0.0  # s, 1σ of the scans' stamp error
+
+    def with_stamp_sigma(self, sigma: float) -> "Disagreement":
+        return dataclasses.replace(self, stamp_sigma=float(sigma))
 
     def nll(self, wheel_scale=1.0):
         """Per-edge NLL with the wheels' share multiplied by wheel_scale ((m,) or a
         number)."""
         scale = np.reshape(np.asarray(wheel_scale, float), (-1, 1, 1))
         cov = self.wheel_cov * scale + self.fixed_cov
+        if self.stamp_cov is not None and self.stamp_sigma > 0.0:
+            cov = cov + self.stamp_cov * self.stamp_sigma**2
         sq = np.einsum("mi,mij,mj->m", self.d, np.linalg.inv(cov), self.d)
         return 0.5 * (graph_mod.laser_kernel().rho(sq) + np.linalg.slogdet(cov)[1])
 
@@ -57,8 +67,10 @@ class OdometryCovariance:
                                                 floor=0.0, parts=inputs.odo_parts))
 
 
-def disagreement(fit: Fit, effects, inputs, edges: Edges, odo_cov: OdometryCovariance) -> Disagreement:
-    """d = (l⁻¹ ∘ K(u; k, effects) ∘ l) ⊖ z' of the edges, with its covariance split."""
+def disagreement(fit: Fit, effects, inputs, edges: Edges, odo_cov: OdometryCovariance,
+                 jitter=None) -> Disagreement:
+    """d = (l⁻¹ ∘ K(u; k, effects) ∘ l) ⊖ z' of the edges, with its covariance split;
+    `jitter` (stamp_jitter.StampJitter or None) the scans' stamp error."""
     values = fit.values
     mech = [e for e in effects if e.kind != "noise"]
     oi, li = edges.odo_index, edges.laser_index
@@ -78,25 +90,30 @@ def disagreement(fit: Fit, effects, inputs, edges: Edges, odo_cov: OdometryCovar
     cov_w = odo_cov.wheels[oi] * odometry_scale
     cov_rest = (odo_cov.total[oi] - odo_cov.wheels[oi]) * odometry_scale
     cov_z = np.linalg.inv(inputs.laser_info[li]) * fit.scales.get("laser", 1.0)
+    stamp_cov, sigma = None, 0.0
+    if jitter is not None:
+        twists = laser_twists(jitter.wheel_speeds, values["odometry"][0], mount)
+        stamp_cov = stamp_covariance(zp, d_zp, twists[edges.pose_i], twists[edges.pose_j])
+        sigma = jitter.sigma
     return Disagreement(d, j_m @ cov_w @ np.swapaxes(j_m, 1, 2),
                         j_m @ cov_rest @ np.swapaxes(j_m, 1, 2)
-                        + d_z @ cov_z @ np.swapaxes(d_z, 1, 2))
+                        + d_z @ cov_z @ np.swapaxes(d_z, 1, 2), stamp_cov, sigma)
 
 
-def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=()):
+def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=(), jitter=None):
     """Per-edge negative log-likelihood of the laser-vs-odometry disagreement, the
     wheels' noise scaled by the fitted noise effects `noise`."""
-    dis = disagreement(fit, effects, inputs, edges, odo_cov)
+    dis = disagreement(fit, effects, inputs, edges, odo_cov, jitter)
     return dis.nll(combined_scale(noise, edges.pose_i, edges.pose_j))
 
 
 def fit_noise_effects(noise, fit: Fit, mech, inputs, edges: Edges, odo_cov, rounds: int,
-                      log_range: float):
+                      log_range: float, jitter=None):
     """Fit the noise effects to the disagreement of `edges` under `fit` (`rounds` of
     coordinate descent, noise_model.fit_noise); the NLL before and after (per edge), each
     with the wheels' overall level fitted (noise_model.level_profiled_nll), so that their
     difference is the effects' shape alone: zero when they change nothing."""
-    dis = disagreement(fit, mech, inputs, edges, odo_cov)
+    dis = disagreement(fit, mech, inputs, edges, odo_cov, jitter)
     fit_noise(noise, edges.pose_i, edges.pose_j, dis.nll, rounds)
     return (level_profiled_nll(dis.nll, np.ones(len(edges.pose_i)), log_range),
             level_profiled_nll(dis.nll, combined_scale(noise, edges.pose_i, edges.pose_j),
