@@ -67,3 +67,19 @@ def test_whiteness_from_lag_two_allows_an_ma1_series_and_finds_longer_memory():
     for i in range(1, n):  # a slowly varying error: memory at every lag
         ar1[i] = 0.5 * ar1[i - 1] + e[i]
     assert ljung_box(ar1, 10, first=2)[1] < 1e-6
+
+
+def test_whiteness_is_not_decided_by_one_stretch_of_bad_matches():
+    # White residuals of 200 edges with 25 consecutive bad matches of alternating sign
+    # (a featureless stretch): no memory outside that stretch, and no structure to report.
+    # A slow error of the same size over the whole run is reported.
+    rng = np.random.default_rng(5)
+    white = rng.standard_normal(200)
+    burst = white.copy()
+    burst[50:75] += 8.0 * np.where(np.arange(25) % 2, 1.0, -1.0) * rng.uniform(0.5, 1.5, 25)
+    values = burst - burst.mean()
+    rho2 = np.dot(values[:-2], values[2:]) / np.dot(values, values)
+    assert rho2 > 0.3  # what the values' autocorrelation shows
+    assert ljung_box(burst, 10, first=2)[1] > 0.01
+    slow = white + 1.0 * np.sin(np.arange(200) / 8.0)
+    assert ljung_box(slow, 10, first=2)[1] < 1e-4

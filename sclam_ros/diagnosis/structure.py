@@ -17,11 +17,20 @@ from sclam_ros.diagnosis.config import StructureConfig
 
 
 def ljung_box(series, lags: int, first: int = 1):
-    """(Q, p) of the Ljung-Box test of no autocorrelation at lags `first` to `lags`.
+    """(Q, p) of the Ljung-Box test of no autocorrelation at lags `first` to `lags`, on
+    the signs of the series about its median.
+
+    Signs, because a whiteness test must not be decided by one stretch: a few dozen scan
+    matches that go wrong together (a featureless stretch, a sharp turn with a narrow
+    laser) make large residuals of alternating sign whose products dominate the sample
+    autocorrelation of the values, clipped or not, on recordings with no effect at all. A
+    missing effect moves the residuals' mean for long stretches and shows in their signs
+    as runs. Under the null the signs' autocorrelation has the values' 1/n variance.
 
     From first = 2 the test allows any correlation at lag 1: Bartlett's variance of the
     sample autocorrelation beyond lag 1 of an MA(1) series, (1 + 2ρ₁²)/n, scales Q."""
-    x = np.asarray(series, float) - np.mean(series)
+    x = np.sign(np.asarray(series, float) - np.median(series))
+    x = x - np.mean(x)
     n = len(x)
     lags = min(lags, n // 4)
     denom = float(np.dot(x, x))
