@@ -33,6 +33,7 @@ def test_cli_selects_time_offset(tmp_path_factory, tmp_path):
     report = json.loads(out.read_text())
     assert set(report) == {"base", "extended", "error_metric", "effects", "unexplained",
                            "unexplained_cause", "not_separable", "calibration_shift_sigma", "timing_noise_s",
+                           "scan_matcher_structure",
                            "warnings"}
     for model in ("base", "extended"):
         assert set(report[model]["params"]) == set(CALIBRATION_KEYS)

@@ -104,6 +104,11 @@ def format_summary(report, config=None) -> str:
                   for u in report["unexplained"]]
     else:
         lines.append("no unexplained structure in the residual tests")
+    if report.get("scan_matcher_structure"):
+        lines.append("the scan matches' residuals depend on how the robot moves (the scan "
+                     "matcher's error, not counted as the model's: docs/diagnose.md): " + ", ".join(
+                         f"{u['component']} vs {u['regressor']} {u['strength']:.2f}"
+                         for u in report["scan_matcher_structure"]))
     for cause in report.get("unexplained_cause", [])[:1]:
         # The naming test fits each regressor as an additive and as a scale error
         # (diagnosis/structure.py), so it can find structure the tests above do not.
