@@ -157,6 +157,34 @@ def base_ratio_of_matches(keyframes, ratio, base_ratio, min_turn=0.05):
     return out
 
 
+SPEED_BANDS = ((0.0, 0.05), (0.05, 0.15), (0.15, 0.3), (0.3, 0.5), (0.5, 2.0))  # m/s
+
+
+def base_ratio_by_speed(keyframes, ratio, base_ratio, min_turn=0.03) -> list:
+    """Rows (speed band, turn side, matches, b / r_r at which the wheels turn as the
+    confirmed scan matches do, mean |wheel turn|): base_ratio_of_matches within bands of the
+    wheels' speed over the match (r_r taken as 1 m: the band edges are in r_r)."""
+    turn, seen, speed = [], [], []
+    for keyframe in keyframes:
+        if keyframe.laser_motion is None:
+            continue
+        before = keyframes[keyframe.laser_from]
+        dphi = keyframe.wheel_angles - before.wheel_angles
+        turn.append(kinematics.forward(dphi, np.array([ratio, 1.0, base_ratio]))[2])
+        seen.append(keyframe.laser_motion[2])
+        speed.append(0.5 * abs(dphi[0] * ratio + dphi[1]) * carmen.NOMINAL_RADIUS
+                     / max(keyframe.stamp - before.stamp, 1e-3))
+    turn, seen, speed = np.array(turn), np.array(seen), np.array(speed)
+    rows = []
+    for (low, high), (side, sign) in itertools.product(SPEED_BANDS, (("left", 1), ("right", -1))):
+        pick = (speed >= low) & (speed < high) & (sign * turn > min_turn)
+        if pick.sum() >= 10:
+            scale = np.sum(seen[pick] * turn[pick]) / np.sum(turn[pick] ** 2)
+            rows.append([f"{low:.2f}-{high:.2f}", side, int(pick.sum()),
+                         f"{base_ratio / scale:.4f}", f"{np.abs(turn[pick]).mean():.3f}"])
+    return rows
+
+
 def aces(data: Path, work: Path, scan_delay: float, fov: float) -> None:
     """The scans stamped ``scan_delay`` s before their log lines, and the relations' times
     (the scans') with them; their beams spread over ``fov`` rad."""
@@ -209,6 +237,9 @@ def aces(data: Path, work: Path, scan_delay: float, fov: float) -> None:
     every, left, right = base_ratio_of_matches(keyframes, *truth)
     print(f"The confirmed scan matches, turn by turn (r_l / r_r at the ≥ 10 s fit): "
           f"b / r_r = {every:.4f} (left turns {left:.4f}, right turns {right:.4f})")
+    print("\nThe same by the wheels' speed over the match (nominal radius), turns over 0.03 rad")
+    print(table(base_ratio_by_speed(keyframes, *truth),
+                ["speed m/s", "turn", "matches", "b / r_r", "mean |turn| rad"]))
     fitted = {"≥ 10 s": truth, "< 10 s": short}
     print(table(relation_rows(log, rel, results, nominal, fitted),
                 ["trajectory", "≥ 10 s: translation m", "≥ 10 s: rotation deg",
