@@ -8,7 +8,8 @@ Time-block cross-validation (diagnose) holds out part of the same drive; a calib
 meant to serve the next drive. Here the whole of B is held out: nothing of B enters the
 fit, and the error is diagnose's held-out metric (disagreement.edge_nll) over every paired edge
 of B. The effects read B's own stamps and wheel speeds with A's parameters: a clock offset
-or a lateral-slip gain is a property of the robot, not of the drive. Noise effects
+or a lateral-slip gain is a property of the robot, not of the drive, and so is the scans'
+timing noise (stamp_jitter.py; A's 1σ with B's wheel speeds). Noise effects
 (floor_noise) are not carried over: their regions are cells of A's map, which B's frame
 does not share; the extended model is scored with its mechanical effects only.
 """
@@ -19,10 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.diagnosis.disagreement import OdometryCovariance, edge_nll
+from sclam_ros.diagnosis.config import NoiseConfig
+from sclam_ros.diagnosis.disagreement import OdometryCovariance, edge_nll, fitted_stamp_jitter
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.effects.model import extend_problem
 from sclam_ros.diagnosis.fitting import Fit, paired_edges
+from sclam_ros.diagnosis.stamp_jitter import StampJitter
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.variance_components import solve_with_variance_components
 
@@ -41,6 +44,7 @@ class FittedModel:
     effects: tuple  # names of the mechanical effects, in the order they chain
     values: dict  # block name -> (1, dim): "odometry", "laser" and one per effect
     scales: dict  # variance factor per edge type
+    timing_noise: float = 0.0  # s, 1σ of the scans' timing noise (stamp_jitter.py)
 
 
 def mechanical(effect_names) -> tuple:
@@ -53,9 +57,9 @@ def graph_inputs(keyframes, params) -> graph_mod.GraphInputs:
         graph_mod.merge_keyframes(keyframes, params.keyframe_interval))
 
 
-def _carried_over(values, names, scales) -> FittedModel:
+def _carried_over(values, names, scales, timing_noise) -> FittedModel:
     blocks = {name: np.array(values[name]) for name in ("odometry", "laser", *names)}
-    return FittedModel(tuple(names), blocks, dict(scales))
+    return FittedModel(tuple(names), blocks, dict(scales), timing_noise)
 
 
 def fit_models(keyframes, params, effect_names=()) -> tuple:
@@ -63,14 +67,19 @@ def fit_models(keyframes, params, effect_names=()) -> tuple:
     graph solved with variance components, then the mechanical effects added and the
     graph solved again from there. Without mechanical effects both are the base."""
     result = calibrate_keyframes(keyframes, params, correct_dilution=False)  # as diagnose
-    base = _carried_over(result.problem.values, (), result.problem.scales)
+    inputs, problem = result.inputs, result.problem
+    data = EffectData.from_keyframes(keyframes, inputs.stamps)
+    fit = Fit(problem, problem.values, dict(problem.scales), float("nan"))
+    odo_cov = OdometryCovariance.of(inputs, params, np.array(params.calibration_vector()[:3]))
+    timing = fitted_stamp_jitter(fit, inputs, paired_edges(inputs), odo_cov, data.wheel_speeds,
+                                 NoiseConfig().log_range).sigma
+    base = _carried_over(problem.values, (), problem.scales, timing)
     names = mechanical(effect_names)
     if not names:
         return base, base
-    data = EffectData.from_keyframes(keyframes, result.inputs.stamps)
-    problem = extend_problem(result.problem, [LIBRARY[n](data) for n in names])
-    solved, scales = solve_with_variance_components(problem)
-    return base, _carried_over(solved.values, names, scales)
+    extended = extend_problem(problem, [LIBRARY[n](data) for n in names])
+    solved, scales = solve_with_variance_components(extended)
+    return base, _carried_over(solved.values, names, scales, timing)
 
 
 def predict_error(model: FittedModel, keyframes, params) -> np.ndarray:
@@ -81,7 +90,8 @@ def predict_error(model: FittedModel, keyframes, params) -> np.ndarray:
     # The stated odometry noise at nominal k, exactly as diagnose scores its held-out blocks.
     odo_cov = OdometryCovariance.of(inputs, params, np.array(params.calibration_vector()[:3]))
     fit = Fit(problem=None, values=model.values, scales=model.scales, cost=float("nan"))
-    return edge_nll(fit, effects, inputs, paired_edges(inputs), odo_cov)
+    jitter = StampJitter(data.wheel_speeds, model.timing_noise)
+    return edge_nll(fit, effects, inputs, paired_edges(inputs), odo_cov, jitter=jitter)
 
 
 def selected_effects(report) -> list:

@@ -31,13 +31,12 @@ from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.diagnosis import identifiability, report as report_mod
 from sclam_ros.diagnosis.config import DiagnoseConfig
 from sclam_ros.diagnosis.cross_validation import Models, time_block_folds
-from sclam_ros.diagnosis.disagreement import OdometryCovariance, disagreement
+from sclam_ros.diagnosis.disagreement import OdometryCovariance, fitted_stamp_jitter
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.evidence import effect_value
 from sclam_ros.diagnosis.fitting import Fit, component_residuals, fit_effects, paired_edges
 from sclam_ros.diagnosis.regressors import regressors
 from sclam_ros.diagnosis.selection import stepwise_selection
-from sclam_ros.diagnosis.stamp_jitter import StampJitter, fit_jitter
 from sclam_ros.diagnosis.structure import name_structure, residual_tests, significant
 from sclam_ros.diagnosis.wall_map import WallMap
 
@@ -120,11 +119,10 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
                                      blocks_per_fold=selection.noise_fold_blocks),
                     regs, edge_reg, config)
     if config.noise.stamp_jitter:
-        unfitted = StampJitter(data.wheel_speeds)
-        sigma = fit_jitter(disagreement(base, [], inputs, edges, odo_cov, unfitted),
-                           config.noise.log_range)
-        models.jitter = StampJitter(data.wheel_speeds, sigma)
-        say(f"scan stamp jitter: {1e3 * sigma:.2f} ms (1σ, held in every model compared)")
+        models.jitter = fitted_stamp_jitter(base, inputs, edges, odo_cov, data.wheel_speeds,
+                                            config.noise.log_range)
+        say(f"the scans' timing noise: {1e3 * models.jitter.sigma:.2f} ms (1σ, held in every "
+            "model compared)")
     n_edges = len(inputs.odo_from) + len(inputs.laser_from)
     selected, evidence, pairs = stepwise_selection(models, names, n_edges, say)
     base_error = float(np.mean(models.heldout_nll([])))

@@ -20,7 +20,7 @@ from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects.model import EffectLaserFactor, EffectOdometryFactor
 from sclam_ros.diagnosis.fitting import Edges, Fit
 from sclam_ros.diagnosis.noise_model import combined_scale, fit_noise, level_profiled_nll
-from sclam_ros.diagnosis.stamp_jitter import laser_twists, stamp_covariance
+from sclam_ros.diagnosis.stamp_jitter import StampJitter, fit_jitter, laser_twists, stamp_covariance
 
 
 @dataclass
@@ -98,6 +98,15 @@ def disagreement(fit: Fit, effects, inputs, edges: Edges, odo_cov: OdometryCovar
     return Disagreement(d, j_m @ cov_w @ np.swapaxes(j_m, 1, 2),
                         j_m @ cov_rest @ np.swapaxes(j_m, 1, 2)
                         + d_z @ cov_z @ np.swapaxes(d_z, 1, 2), stamp_cov, sigma)
+
+
+def fitted_stamp_jitter(fit: Fit, inputs, edges: Edges, odo_cov, wheel_speeds,
+                       log_range: float) -> StampJitter:
+    """The scans' stamp jitter fitted to the disagreement of `edges` under `fit` without
+    effects (stamp_jitter.fit_jitter); wheel_speeds (n, 2) at the graph's poses."""
+    unfitted = StampJitter(wheel_speeds)
+    sigma = fit_jitter(disagreement(fit, [], inputs, edges, odo_cov, unfitted), log_range)
+    return StampJitter(wheel_speeds, sigma)
 
 
 def edge_nll(fit: Fit, effects, inputs, edges: Edges, odo_cov, noise=(), jitter=None):
