@@ -112,13 +112,21 @@ class ReadCounts:
     """What :func:`iter_messages` met, per topic: messages ``read`` (yielded) and ``corrupt``
     (skipped: they did not deserialize), and how often the storage itself was unreadable.
     ``used``: filled by the consumer (io/recording.py), messages it passed on to the
-    calibration (read minus those its checks rejected)."""
+    calibration (read minus those its checks rejected). ``span``: (from, to) record time (s,
+    None: open) of the messages counted; a chunk of a recording (fleet/chunked.py) counts
+    its own span only, so that the chunks' counts add up to the recording's."""
 
-    def __init__(self):
+    def __init__(self, span=(None, None)):
+        self.span = span
         self.read: Counter = Counter()
         self.used: Counter = Counter()
         self.corrupt: Counter = Counter()
         self.unreadable = 0  # storage errors stepped over (their messages are lost uncounted)
+
+    def covers(self, record_time_s: float) -> bool:
+        """Whether a message recorded at this time is counted (inside ``span``)."""
+        lo, hi = self.span
+        return (lo is None or record_time_s >= lo) and (hi is None or record_time_s < hi)
 
     def as_dict(self) -> dict:
         """{topic: {"read": n, "used": u, "corrupt": m}} for every topic seen."""
@@ -184,16 +192,17 @@ def iter_messages(
         raw = _raw_messages(reader, connections, start_ns, stop_ns, counts, path)
         for connection, timestamp_ns, data in raw:
             topic = connection.topic
+            record_time = timestamp_ns / NS_PER_S
             try:
                 msg = reader.deserialize(data, connection.msgtype)
             except Exception as exc:  # noqa: BLE001 - corrupt bytes raise assorted errors
                 if not counts.corrupt[topic]:
                     log.warning("bag %s: corrupt %s message at t = %.3f s skipped (%s); further "
-                                "ones are counted", path, topic, timestamp_ns / NS_PER_S, exc)
-                counts.corrupt[topic] += 1
+                                "ones are counted", path, topic, record_time, exc)
+                counts.corrupt[topic] += counts.covers(record_time)
                 continue
-            counts.read[topic] += 1
-            yield topic, timestamp_ns / NS_PER_S, msg
+            counts.read[topic] += counts.covers(record_time)
+            yield topic, record_time, msg
         if start is None and stop is None:
             _warn_if_short(reader, topics, counts, path)
     for topic, n in sorted(counts.corrupt.items()):

@@ -1,0 +1,80 @@
+"""One recording's time chunks (chunked.py) registered on a pool of local processes.
+
+Dask runs many recordings, or chunks on a cluster that is already up (`sclam fleet`,
+`--scheduler`). For the chunks of one recording on this machine its LocalCluster costs more
+to start (a scheduler, nanny and worker processes, each importing the package: seconds)
+than the registration of a few minutes of data saves; forked processes start in
+milliseconds with the package already imported, so the parallel path pays from a recording
+of about a minute on (docs/decisions/parallel.md). Where fork is not available the
+workers are spawned and import the package themselves.
+
+Workers are processes, one chunk each, for the reason engine.py gives (the registration
+holds the interpreter lock). Each one writes how far it has read into shared memory, so the
+progress bar moves while the chunks run.
+"""
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import sys
+from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+
+from sclam_ros.fleet.chunked import plan_for, recording_of, register_chunk
+
+log = logging.getLogger("sclam")
+
+_PROGRESS_SECONDS = 0.25  # how often the parent looks at the workers' progress
+_shared_progress = None  # in a worker: the fraction read of each chunk (shared array)
+
+
+def _context():
+    """fork where the platform has it and it is safe (Linux): the workers start with the
+    parent's imports; else spawn."""
+    if sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods():
+        return multiprocessing.get_context("fork")
+    return multiprocessing.get_context("spawn")
+
+
+def _init_worker(progress) -> None:
+    global _shared_progress
+    _shared_progress = progress
+
+
+def _register(path, params, chunk):
+    """register_chunk with its progress written to the shared array (a worker's task)."""
+    def report(done, total):
+        _shared_progress[chunk.number] = min(1.0, done / total) if total else 1.0
+
+    return register_chunk(path, params, chunk, progress=report)
+
+
+def register_on_processes(path, params, workers: int, progress=None):
+    """Register `path` in `workers` time chunks on as many local processes; the chunks'
+    results (chunked.ChunkResult), in chunk order. The plan may have fewer chunks than
+    `workers` (chunked.MIN_CHUNK_S)."""
+    plan = plan_for(path, params, workers)
+    context = _context()
+    shared = context.Array("d", len(plan), lock=False)
+    with ProcessPoolExecutor(max_workers=len(plan), mp_context=context,
+                             initializer=_init_worker, initargs=(shared,)) as pool:
+        futures = [pool.submit(_register, os.fspath(path), params, chunk) for chunk in plan]
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, timeout=_PROGRESS_SECONDS, return_when=FIRST_EXCEPTION)
+            if any(f.exception() is not None for f in done):
+                for future in pending:
+                    future.cancel()
+                break
+            if progress is not None:
+                progress(int(1000 * sum(shared) / len(plan)), 1000)
+        results = [future.result() for future in futures]  # raises a worker's error here
+    if progress is not None:
+        progress(1000, 1000)
+    return results
+
+
+def registered_in_parallel(path, params, workers: int, progress=None):
+    """The io.recording.Recording of `path` registered in `workers` chunks on local
+    processes (chunked.recording_of)."""
+    return recording_of(register_on_processes(path, params, workers, progress))
