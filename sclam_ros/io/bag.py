@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from contextlib import contextmanager
+from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Iterator, Optional, Sequence
 
@@ -223,17 +224,41 @@ def _warn_if_short(reader: AnyReader, topics, counts: ReadCounts, path) -> None:
 
 def topic_info(path) -> dict[str, tuple[str, int]]:
     """topic -> (message type, message count)."""
-    with open_reader(path) as reader:
-        return {name: (info.msgtype, info.msgcount) for name, info in reader.topics.items()}
+    return dict(_summary(path)[0])
 
 
 def _time_span_ns(path) -> tuple[int, int]:
     """(first, last) record time of the bag's messages in integer ns; (0, 0) for an empty bag."""
+    return _summary(path)[1]
+
+
+def _summary(path):
+    """(((topic, (message type, count)), ...), (first, last) record time ns) of the bag: one
+    opening of it for what a calibration asks several times (each opening reads its metadata
+    and storage schema: ~40 ms), kept while its files are unchanged."""
+    path = Path(path)
+    try:
+        target = _reader_path(path)
+        files = sorted(target.iterdir()) if target.is_dir() else [target]
+        signature = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files)
+    except OSError:
+        signature = None  # open_reader says what is wrong
+    if signature is None:
+        return _read_summary(path)
+    return _cached_summary(str(path.resolve()), signature)
+
+
+@lru_cache(maxsize=8)
+def _cached_summary(path: str, signature) -> tuple:
+    return _read_summary(path)
+
+
+def _read_summary(path) -> tuple:
     with open_reader(path) as reader:
-        if reader.message_count == 0:
-            return 0, 0
+        topics = tuple((name, (info.msgtype, info.msgcount)) for name, info in reader.topics.items())
         # rosbags' end_time is one nanosecond after the last message.
-        return reader.start_time, reader.end_time - 1
+        span = (0, 0) if reader.message_count == 0 else (reader.start_time, reader.end_time - 1)
+    return topics, span
 
 
 def time_span(path) -> tuple[float, float]:
