@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import signal
 import sys
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 
@@ -25,7 +26,7 @@ from sclam_ros.fleet.chunked import plan_for, recording_of, register_chunk
 log = logging.getLogger("sclam")
 
 _PROGRESS_SECONDS = 0.25  # how often the parent looks at the workers' progress
-_shared_progress = None  # in a worker: the fraction read of each chunk (shared array)
+_shared = None  # in a worker: (fraction read, process id) of each chunk (shared arrays)
 
 
 def _context():
@@ -36,17 +37,33 @@ def _context():
     return multiprocessing.get_context("spawn")
 
 
-def _init_worker(progress) -> None:
-    global _shared_progress
-    _shared_progress = progress
+def _init_worker(progress, pids) -> None:
+    global _shared
+    _shared = progress, pids
 
 
 def _register(path, params, chunk):
     """register_chunk with its progress written to the shared array (a worker's task)."""
+    progress, pids = _shared
+    pids[chunk.number] = os.getpid()
+
     def report(done, total):
-        _shared_progress[chunk.number] = min(1.0, done / total) if total else 1.0
+        progress[chunk.number] = min(1.0, done / total) if total else 1.0
 
     return register_chunk(path, params, chunk, progress=report)
+
+
+def _stop(futures, pids) -> None:
+    """Cancel the chunks not started and end the processes of those that are: interrupted,
+    the command must not wait for them to finish."""
+    for future in futures:
+        future.cancel()
+    for chunk, pid in enumerate(pids):
+        if pid and not futures[chunk].done():
+            try:
+                os.kill(pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
 
 
 def register_on_processes(path, params, workers: int, progress=None):
@@ -56,18 +73,24 @@ def register_on_processes(path, params, workers: int, progress=None):
     plan = plan_for(path, params, workers)
     context = _context()
     shared = context.Array("d", len(plan), lock=False)
+    pids = context.Array("q", len(plan), lock=False)
     with ProcessPoolExecutor(max_workers=len(plan), mp_context=context,
-                             initializer=_init_worker, initargs=(shared,)) as pool:
+                             initializer=_init_worker, initargs=(shared, pids)) as pool:
         futures = [pool.submit(_register, os.fspath(path), params, chunk) for chunk in plan]
         pending = set(futures)
-        while pending:
-            done, pending = wait(pending, timeout=_PROGRESS_SECONDS, return_when=FIRST_EXCEPTION)
-            if any(f.exception() is not None for f in done):
-                for future in pending:
-                    future.cancel()
-                break
-            if progress is not None:
-                progress(int(1000 * sum(shared) / len(plan)), 1000)
+        try:
+            while pending:
+                done, pending = wait(pending, timeout=_PROGRESS_SECONDS,
+                                     return_when=FIRST_EXCEPTION)
+                if any(f.exception() is not None for f in done):
+                    break
+                if progress is not None:
+                    progress(int(1000 * sum(shared) / len(plan)), 1000)
+        except BaseException:  # interrupted
+            _stop(futures, pids)
+            raise
+        if pending:  # a chunk failed: the others' work is lost anyway
+            _stop(futures, pids)
         results = [future.result() for future in futures]  # raises a worker's error here
     if progress is not None:
         progress(1000, 1000)
