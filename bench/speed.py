@@ -197,19 +197,25 @@ def speed_tables(work, minutes_list, seed, repeat):
 
 def crossover_table(work, durations, seeds, repeat):
     """--workers 1 against --workers 2 on short recordings: where parallel starts to pay."""
-    rows = []
+    rows, pays = [], []
     for seconds in durations:
-        row = [f"{seconds:g} s"]
+        row, ratios = [f"{seconds:g} s"], []
         for seed in seeds:
             bag = recording(work, seconds / 60.0, seed)
             walls = {}
             for workers in ("1", "2"):
                 walls[workers] = statistics.median(
                     calibrate(bag, workers, work / "crossover.json")[0] for _ in range(repeat))
-            row.append(f"{walls['1']:.2f} / {walls['2']:.2f} ({walls['2'] / walls['1']:.2f})")
+            ratios.append(walls["2"] / walls["1"])
+            row.append(f"{walls['1']:.2f} / {walls['2']:.2f} ({ratios[-1]:.2f})")
         rows.append(row)
+        pays.append(max(ratios) < 1.0)
         print(rows[-1], flush=True)
-    return table(rows, ["recording"] + [f"seed {s}: --workers 1 / 2 s (ratio)" for s in seeds])
+    # The shortest length from which two processes were faster on every seed, there and
+    # at every longer length measured.
+    from_s = next((d for i, d in enumerate(durations) if all(pays[i:])), None)
+    return (table(rows, ["recording"] + [f"seed {s}: --workers 1 / 2 s (ratio)" for s in seeds])
+            + f"\nparallel paid from: {'not within these lengths' if from_s is None else f'{from_s:g} s'}")
 
 
 def main():
@@ -220,8 +226,8 @@ def main():
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--crossover", action="store_true",
                     help="also --workers 1 against 2 on --short recordings of --crossover-seeds")
-    ap.add_argument("--short", type=float, nargs="*", default=[30, 45, 60, 90, 120],
-                    help="s: the recordings of --crossover")
+    ap.add_argument("--short", type=float, nargs="*", default=[40, 60, 90, 120, 180],
+                    help="s: the recordings of --crossover (two chunks need 40 s)")
     ap.add_argument("--crossover-seeds", type=int, nargs="*", default=[21, 22])
     ap.add_argument("--lengths", action="store_true",
                     help="the cost per scan over --minutes (default 1 5 10 20) instead")
