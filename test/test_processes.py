@@ -29,13 +29,20 @@ def test_a_short_recording_is_registered_sequentially(tmp_path, caplog):
     assert "registering sequentially" in log and "parallel chunks pay from" in log
 
 
+@pytest.fixture(scope="module")
+def long_bag(tmp_path_factory):
+    bag = tmp_path_factory.mktemp("long") / "bag"
+    simulate(bag, duration=THRESHOLD + 60.0, seed=4)
+    return bag
+
+
 @pytest.mark.skipif(default_workers() < 2, reason="parallel chunks need two cores")
-def test_a_long_recording_is_registered_in_parallel_and_agrees_with_sequential(tmp_path, caplog):
+def test_a_long_recording_is_registered_in_parallel_and_agrees_with_sequential(
+        long_bag, tmp_path, caplog):
     """The automatic choice registers on every core; the parameters agree with the
     sequential run's within a fraction of σ, and the counts of messages and rejections,
     and the warnings, are the same."""
-    bag = tmp_path / "long"
-    simulate(bag, duration=THRESHOLD + 60.0, seed=4)
+    bag = long_bag
     auto, log = _calibrate(bag, tmp_path / "auto.json", caplog)
     assert f"registering in {min(default_workers(), 6)} parallel chunks" in log
     sequential, log = _calibrate(bag, tmp_path / "sequential.json", caplog, "--workers", "1")
@@ -47,3 +54,13 @@ def test_a_long_recording_is_registered_in_parallel_and_agrees_with_sequential(t
     assert auto["messages"] == sequential["messages"]
     assert auto["rejected"] == sequential["rejected"]
     assert auto["warnings"] == sequential["warnings"]
+
+
+def test_an_error_in_a_chunk_is_the_one_line_error_of_a_sequential_run(long_bag, tmp_path,
+                                                                      capsys):
+    params = tmp_path / "params.yaml"
+    params.write_text((long_bag / "params.yaml").read_text().replace("/scan", "/laser"))
+    assert main(["calibrate", str(long_bag), "--params", str(params), "--quiet",
+                 "--workers", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "error: topic(s) /laser not in bag" in err and "Traceback" not in err

@@ -4,9 +4,9 @@ Dask runs many recordings, or chunks on a cluster that is already up (`sclam fle
 `--scheduler`). For the chunks of one recording on this machine its LocalCluster costs more
 to start (a scheduler, nanny and worker processes, each importing the package: seconds)
 than the registration of a few minutes of data saves; forked processes start in
-milliseconds with the package already imported, so the parallel path pays from a recording
-of about a minute on (docs/decisions/parallel.md). Where fork is not available the
-workers are spawned and import the package themselves.
+milliseconds with the package already imported (docs/decisions/parallel.md). Where fork is
+not available the workers are spawned and import the package themselves. With fork the
+pool starts every worker before its own manager thread: no thread is forked.
 
 Workers are processes, one chunk each, for the reason engine.py gives (the registration
 holds the interpreter lock). Each one writes how far it has read into shared memory, so the
@@ -20,6 +20,7 @@ import os
 import signal
 import sys
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
 from sclam_ros.fleet.chunked import plan_for, recording_of, register_chunk
 
@@ -66,6 +67,15 @@ def _stop(futures, pids) -> None:
                 pass
 
 
+def _first_error(futures) -> BaseException:
+    """The error a chunk raised (BagError, ...), not the cancellations and broken pool that
+    ending the others caused."""
+    errors = [f.exception() for f in futures if f.done() and not f.cancelled()]
+    errors = [e for e in errors if e is not None]
+    own = [e for e in errors if not isinstance(e, BrokenProcessPool)]
+    return (own or errors)[0]
+
+
 def register_on_processes(path, params, workers: int, progress=None):
     """Register `path` in `workers` time chunks on as many local processes; the chunks'
     results (chunked.ChunkResult), in chunk order. The plan may have fewer chunks than
@@ -91,7 +101,8 @@ def register_on_processes(path, params, workers: int, progress=None):
             raise
         if pending:  # a chunk failed: the others' work is lost anyway
             _stop(futures, pids)
-        results = [future.result() for future in futures]  # raises a worker's error here
+            raise _first_error(futures)
+        results = [future.result() for future in futures]
     if progress is not None:
         progress(1000, 1000)
     return results
