@@ -45,13 +45,18 @@ class Chunk:
     read_to: float
     span_from: float = None
     span_to: float = None
+    # s: the laser's period measured on the recording's first scans (None for the first
+    # chunk, which measures it itself): every chunk matches the scans a sequential pass does
+    scan_period: float = None
 
 
-def plan_chunks(first: float, last: float, count: int, stamp_offset: float = 0.0) -> list[Chunk]:
+def plan_chunks(first: float, last: float, count: int, stamp_offset: float = 0.0,
+                scan_period: float = None) -> list[Chunk]:
     """`count` chunks of equal length over the record-time span [first, last].
 
     ``stamp_offset`` is header stamp minus record time of the scans: the keep bounds are in
     header-stamp time (the keyframes' stamps), the read bounds in record time (the bag's).
+    ``scan_period``: the laser's, from the recording's first scans, for the later chunks.
     The first chunk keeps everything before it and the last everything after it.
     """
     count = max(1, min(count, int((last - first) // MIN_CHUNK_S) or 1))
@@ -65,7 +70,7 @@ def plan_chunks(first: float, last: float, count: int, stamp_offset: float = 0.0
         span_from = None if i == 0 else float(bounds[i])
         span_to = None if i == count - 1 else float(bounds[i + 1])
         chunks.append(Chunk(i, float(keep_from), float(keep_to), read_from, read_to,
-                            span_from, span_to))
+                            span_from, span_to, None if i == 0 else scan_period))
     return chunks
 
 
@@ -100,7 +105,8 @@ def register_chunk(path, params, chunk: Chunk, progress=None) -> ChunkResult:
     logger.addHandler(lines)
     try:
         recording = read_recording(path, params, progress=progress, start=chunk.read_from,
-                                   stop=chunk.read_to, counted=(chunk.span_from, chunk.span_to))
+                                   stop=chunk.read_to, counted=(chunk.span_from, chunk.span_to),
+                                   scan_period=chunk.scan_period)
     finally:
         logger.removeHandler(lines)
         logger.propagate = propagate
@@ -204,14 +210,28 @@ def joined_wheel_sides(results: list[ChunkResult]):
     return joined
 
 
-def scan_stamp_offset(path, params) -> float:
-    """Header stamp minus record time of the first scan (0 if the bag has no scan)."""
+def first_scans(path, params) -> tuple[float, float]:
+    """(header stamp minus record time of the first scan, the laser's period as the front
+    end's decimator measures it on the first scans: frontend/decimation.scan_period);
+    (0, None) if the bag has no scan."""
+    from sclam_ros.frontend.config import DecimationConfig
+    from sclam_ros.frontend.decimation import scan_period
     from sclam_ros.io import bag
     from sclam_ros.io.messages import stamp_to_sec
 
-    for _, record_time, msg in bag.iter_messages(path, [params.scan_topic]):
-        return stamp_to_sec(msg.header.stamp) - record_time
-    return 0.0
+    offset, stamps = 0.0, []
+    messages = bag.iter_messages(path, [params.scan_topic])
+    try:
+        for _, record_time, msg in messages:
+            stamps.append(stamp_to_sec(msg.header.stamp))
+            offset = stamps[0] - record_time if len(stamps) == 1 else offset
+            if len(stamps) > DecimationConfig().rate_sample:
+                break
+    finally:
+        messages.close()
+    if not stamps:
+        return 0.0, None
+    return offset, scan_period(stamps) if len(stamps) > DecimationConfig().rate_sample else None
 
 
 def plan_for(path, params, chunks: int) -> list[Chunk]:
@@ -219,7 +239,7 @@ def plan_for(path, params, chunks: int) -> list[Chunk]:
     from sclam_ros.io import bag
 
     first, last = bag.time_span(path)
-    return plan_chunks(first, last, chunks, scan_stamp_offset(path, params))
+    return plan_chunks(first, last, chunks, *first_scans(path, params))
 
 
 def recording_of(results: list[ChunkResult]):

@@ -324,12 +324,13 @@ def iter_keyframes(path, params, frontend=None, progress=None, start=None, stop=
 
 
 def read_recording(path, params, progress=None, start=None, stop=None,
-                   keep_scan_points=False, counted=(None, None)) -> Recording:
+                   keep_scan_points=False, counted=(None, None), scan_period=None) -> Recording:
     """keep_scan_points: the keyframes carry their scans' points (for `sclam diagnose`'s
     map of walls). counted: the record-time span (s) whose messages, rejections and front
     end counts the Recording counts (bag.ReadCounts.span, SpanWatch); the whole recording
-    unless given."""
-    frontend = Frontend(params, keep_scan_points=keep_scan_points)
+    unless given. scan_period: the laser's period measured on the recording's first scans,
+    for a read that starts later (frontend/decimation.py)."""
+    frontend = Frontend(params, keep_scan_points=keep_scan_points, scan_period=scan_period)
     counts = bag.ReadCounts(span=counted)
     sides = SideDisagreement(params)
     if counted == (None, None):
