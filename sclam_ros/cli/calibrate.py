@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="register the recording in N time chunks in parallel, one local "
                              "process each, joined in one graph; 1: sequentially. Default "
                              "auto: one chunk per core when the recording is long enough "
-                             "for it to pay (a minute or more), else sequentially; the "
+                             "for it to pay (two minutes or more), else sequentially; the "
                              "choice is logged")
     parser.add_argument("--scheduler", metavar="tcp://HOST:8786",
                         help="register the chunks on this existing Dask cluster instead (one "

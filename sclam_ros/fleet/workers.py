@@ -2,9 +2,10 @@
 
 Cut into time chunks (chunked.py), a recording registers in parallel; each chunk costs a
 few seconds of data read twice (its lead) and a local map started anew, and the processes
-cost their start. Parallel pays from a length on, measured by bench/speed.py
-(docs/decisions/parallel.md); shorter recordings register sequentially. The length comes
-from the bag's metadata, before anything is read.
+cost their start. Parallel pays from a length on, measured by bench/speed.py, and a short
+recording cut in two can move by a fraction of σ (docs/decisions/parallel.md): shorter
+recordings register sequentially. The length comes from the bag's metadata, before
+anything is read.
 """
 from __future__ import annotations
 
@@ -16,10 +17,10 @@ from sclam_ros.fleet.engine import default_workers
 
 @dataclass(frozen=True)
 class WorkersConfig:
-    # s of recording from which `--workers auto` registers in parallel chunks: below it the
-    # processes' start and the chunks' leads cost about what the parallel registration
-    # saves (docs/decisions/parallel.md)
-    parallel_from_s: float = 60.0
+    # s of recording from which `--workers auto` registers in parallel chunks: parallel paid
+    # from 60 s but saved a fifth only from 2 minutes, and the real one-minute logs cut in
+    # two moved by up to 1.5 σ (docs/decisions/parallel.md)
+    parallel_from_s: float = 120.0
 
 
 @dataclass(frozen=True)
