@@ -13,8 +13,13 @@ one per scan, numbered in stamp order:
   - where the margin did not produce that same scan (a gap in the data), the edge is dropped
     and counted (``chunk_boundary_unlinked``), never attached to the wrong node.
 
-What differs from the sequential run is only the scan matcher's map, rebuilt at each chunk
-start: bench/fleet.py measures the parameters within a small fraction of σ of it.
+Every chunk after the first lays the decimation grid with the laser period measured on the
+recording's first scans (``Chunk.scan_period``), so it matches the scans a sequential pass
+matches; and it counts its messages, rejections and front-end report over its own span, so
+the chunks' counts add up to the recording's. What differs from the sequential run is the
+scan matcher's map, rebuilt at each chunk start: on the simulator the parameters stay
+within a few hundredths of σ of it, on short real logs they moved by up to 1.5 σ
+(docs/decisions/parallel.md).
 """
 from __future__ import annotations
 
@@ -127,11 +132,9 @@ def relog_chunks(results: list[ChunkResult], logger=None) -> None:
 
 
 def join_chunks(results: list[ChunkResult]) -> tuple[list, Rejections]:
-    """The chunks' kept keyframes renumbered into one chain (see the module docstring).
-
-    Rejections are summed over the kept span only approximately: a chunk's lead and tail
-    are read twice, so counts there may appear twice.
-    """
+    """The chunks' kept keyframes renumbered into one chain (see the module docstring), and
+    their rejections added: each chunk's are those of its own span (recording.SpanWatch),
+    so they add up to a sequential pass's but for what a chunk's fresh map changes."""
     joined = []
     rejections = Rejections()
     global_index_of_stamp = {}
