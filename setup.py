@@ -35,7 +35,7 @@ setup(
         "yourdfpy>=0.0.60",
     ],
     extras_require={
-        # `sclam fleet` and `sclam calibrate --workers/--scheduler`
+        # `sclam fleet` and `sclam calibrate --scheduler` (a recording's chunks on local processes need none)
         "fleet": ["dask[distributed]>=2024.1", "bokeh>=3.1"],
     },
     python_requires=">=3.10",

@@ -64,3 +64,22 @@ def test_slow_encoders_get_the_scan_after_each_sample_matched(encoder_rate):
     assert np.diff(after).min() >= 0.5 * MATCH_PERIOD - 1e-6
     assert decimator.skipped == 600 - len(kept)
     assert decimator.follows_samples  # `sclam calibrate` says so
+
+
+def test_a_reader_given_the_recordings_scan_period_matches_the_same_scans_from_its_middle():
+    """A jittery laser (a real log's stamps): a decimator that measures the period on its
+    own first scans in the middle lays another grid; given the period measured on the
+    recording's first scans (scan_period, as fleet/chunked.py does) it matches the scans
+    a sequential pass does."""
+    from sclam_ros.frontend.decimation import scan_period
+
+    rng = np.random.default_rng(1)
+    stamps = 1.7e9 + np.cumsum(rng.uniform(0.09, 0.106, 3000))
+    sequential, _ = accepted(stamps)
+    middle = 1500
+    given = ScanDecimator(scan_period=scan_period(stamps[:RATE_SAMPLE + 1]))
+    from_middle = [t for t in stamps[middle:] if given.accept(t)]
+    # (its first scan opens a bin, as in any reader; from the next on, the grid decides)
+    assert from_middle[1:] == [t for t in sequential if t >= from_middle[1]]
+    measuring, _ = accepted(stamps[middle:])
+    assert not set(measuring[RATE_SAMPLE + 2:]) <= set(sequential)

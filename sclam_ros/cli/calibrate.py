@@ -52,12 +52,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "estimates over time: t (s, header stamp), the six parameters, "
                              "sigma_<name> and observable_<name> (1 or 0: a parameter the data "
                              "has not observed is at its nominal value) for each")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="register the recording in this many time chunks in parallel on a "
-                             "Dask LocalCluster of as many worker processes, joined in one graph "
-                             "(for long recordings; default 1: sequential, no cluster)")
+    parser.add_argument("--workers", type=_workers, default="auto", metavar="auto|N",
+                        help="register the recording in N time chunks in parallel, one local "
+                             "process each, joined in one graph; 1: sequentially. Default "
+                             "auto: one chunk per core when the recording is long enough "
+                             "for it to pay (two minutes or more), else sequentially; the "
+                             "choice is logged")
     parser.add_argument("--scheduler", metavar="tcp://HOST:8786",
-                        help="register the chunks on this existing Dask cluster instead")
+                        help="register the chunks on this existing Dask cluster instead (one "
+                             "per worker of the cluster, or --workers N)")
     parser.add_argument("--quiet", action="store_true", help="no progress output")
     parser.add_argument("--verbose", action="store_true", help="log every solver iteration")
 
@@ -194,20 +197,41 @@ def _explain_unobserved(observable, report=None) -> None:
               "offset), straights (the radii' common scale).")
 
 
+def _workers(text):
+    if text == "auto":
+        return text
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected auto or a number of workers ≥ 1, got {text!r}")
+    return value
+
+
 def _register(args, params, progress):
-    """The recording's keyframes: sequentially, or in time chunks on a Dask cluster."""
-    from sclam_ros.io.recording import Recording, read_recording
+    """The io.recording.Recording of the bag: sequentially, in time chunks on local
+    processes (fleet/processes.py), or on the Dask cluster of --scheduler."""
+    from sclam_ros.fleet.chunked import recording_of
+    from sclam_ros.io import bag
+    from sclam_ros.io.recording import read_recording
 
-    if args.workers <= 1 and not args.scheduler:
+    if args.scheduler:
+        from sclam_ros.fleet.chunked import dask_results
+        from sclam_ros.fleet.engine import dask_client
+
+        with dask_client(scheduler=args.scheduler, dashboard=not args.quiet) as client:
+            workers = len(client.scheduler_info()["workers"])
+            chunks = workers if args.workers == "auto" else args.workers
+            return recording_of(dask_results(client, args.bag, params, chunks, progress))
+    from sclam_ros.fleet.processes import registered_in_parallel
+    from sclam_ros.fleet.workers import choose_workers
+
+    choice = choose_workers(args.workers, bag.duration_s(args.bag))
+    log.info("%s", choice.reason)
+    if choice.workers == 1:
         return read_recording(args.bag, params, progress=progress)
-    from sclam_ros.fleet.chunked import register_in_chunks
-    from sclam_ros.fleet.engine import dask_client
-
-    with dask_client(args.workers, args.scheduler, dashboard=not args.quiet) as client:
-        workers = len(client.scheduler_info()["workers"])
-        chunks = max(args.workers, workers)
-        keyframes, rejections = register_in_chunks(client, args.bag, params, chunks, progress)
-    return Recording(keyframes, rejections)
+    return registered_in_parallel(args.bag, params, choice.workers, progress)
 
 
 # Rejections that every recording has: the first scans of each local map only build it.
@@ -216,7 +240,8 @@ EXPECTED_REJECTIONS = {"match_map_warmup"}
 
 def _warn_about_input(rejections, report) -> None:
     """Say what the data path dropped or could not refine, so nothing is lost silently.
-    ``report``: the front end's FrontendReport (None where the keyframes were made in chunks)."""
+    ``report``: the front end's FrontendReport (joined over the chunks where the keyframes
+    were made in chunks)."""
     # The scans that build each new local map (the first few of a recording) are not matched
     # by design: an info, so that a clean recording ends without a warning.
     # match_unconfirmed gets its own warning below, with its reasons.
@@ -369,7 +394,7 @@ def _run(args, warnings) -> int:
         return _run_track(args, params, truth)
     recording = _register(args, params, ProgressBar("reading + scan matching", not args.quiet))
     _explain_skid_steer(params, recording.wheel_sides)
-    report = recording.frontend.report() if recording.frontend is not None else None
+    report = recording.report
     _warn_about_input(recording.rejections, report)
     if not args.quiet:
         log.info("solving the graph: %d scans", len(recording.keyframes))

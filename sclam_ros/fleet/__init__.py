@@ -1,3 +1,3 @@
-"""Many recordings, and one long recording in parallel, on Dask distributed: discovery of inputs,
-the per-recording task, the results store, time-chunked registration and calibration history.
+"""Many recordings on Dask distributed, one recording in time chunks on local processes (or a
+cluster): discovery of inputs, the per-recording task, the results store, chunks, history.
 May import: core, frontend, online, diagnosis, io."""

@@ -35,12 +35,22 @@ import numpy as np
 from sclam_ros.frontend.config import DecimationConfig
 
 
+def scan_period(stamps) -> float:
+    """s: the laser's period from the stamps of its first scans (the median positive step;
+    0 if none is)."""
+    periods = np.diff(stamps)
+    return float(np.median(periods[periods > 0])) if np.any(periods > 0) else 0.0
+
+
 class ScanDecimator:
     """``accept(stamp, ...)``: True for the scans to match. Counts the others in ``skipped``."""
 
     def __init__(self, match_period: Optional[float] = None,
-                 config: DecimationConfig = DecimationConfig()):
-        """match_period: s, config.match_period unless given (the online calibrator's)."""
+                 config: DecimationConfig = DecimationConfig(), scan_period: Optional[float] = None):
+        """match_period: s, config.match_period unless given (the online calibrator's).
+        scan_period: s, the laser's period as scan_period() measured it on the recording's
+        first scans, for a reader that starts later (a chunk of it: fleet/chunked.py), so
+        that it matches the scans a reader from the start matches; None: measured here."""
         self.config = config
         self.match_period = config.match_period if match_period is None else match_period
         self.skipped = 0
@@ -50,6 +60,13 @@ class ScanDecimator:
         self._last_bin = None
         self._last_accepted = None  # stamp of the last scan accepted
         self.follows_samples = False  # the encoders were slower than the matching: see above
+        if scan_period is not None:
+            self._set_period(scan_period)
+
+    def _set_period(self, period: float) -> None:
+        # Halves round up, and a period a hair long (0.2000001 s) still gives 1.5 → 2.
+        self.every = max(1, math.floor(self.match_period / period + 0.5 + 1e-6)) if period > 0 else 1
+        self._bin_width = self.every * period
 
     def accept(self, stamp: float, last_sample: Optional[float] = None,
                sample_period: Optional[float] = None) -> bool:
@@ -65,11 +82,7 @@ class ScanDecimator:
         if self.every is None:
             self._stamps.append(stamp)
             if len(self._stamps) > self.config.rate_sample:
-                periods = np.diff(self._stamps)
-                period = float(np.median(periods[periods > 0])) if np.any(periods > 0) else 0.0
-                # Halves round up, and a period a hair long (0.2000001 s) still gives 1.5 → 2.
-                self.every = max(1, math.floor(self.match_period / period + 0.5 + 1e-6)) if period > 0 else 1
-                self._bin_width = self.every * period
+                self._set_period(scan_period(self._stamps))
             return True  # every scan while the rate is being measured
         if self.every == 1:
             return True

@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import theilslopes
 
 from sclam_ros.frontend.config import FrontendConfig, LaserNoiseConfig
 from sclam_ros.frontend.scan_matching import valid_beams
@@ -86,6 +85,10 @@ def judged_growth(samples, config: LaserNoiseConfig = LaserNoiseConfig()):
     errors = np.abs(np.concatenate([e for _, e in samples]))
     if len(ranges) < config.growth_samples * config.growth_bins:
         return 0.0
+    # Here, not at the top: scipy.stats takes 0.4 s to import, a tenth of calibrating a
+    # 5-minute recording, and only a noisy laser's judgement needs it.
+    from scipy.stats import theilslopes
+
     bins = np.array_split(np.argsort(ranges), config.growth_bins)
     spread = np.array([1.4826 * np.median(errors[b]) / math.sqrt(1.5) for b in bins])
     middle = np.array([np.median(ranges[b]) for b in bins])

@@ -60,7 +60,7 @@ class Frontend:
 
     def __init__(self, params, rejections: Optional[Rejections] = None, matcher=None,
                  match_period: Optional[float] = None, keep_scan_points: bool = False,
-                 config: FrontendConfig = FrontendConfig()):
+                 config: FrontendConfig = FrontendConfig(), scan_period: Optional[float] = None):
         self.params = params  # the user's (SclamParams); config is the developer's tuning
         # Keyframes carry their scan's points (Keyframe.scan_points): for the diagnosis's
         # map of walls, not for the calibration (an hour of 360-beam scans matched every
@@ -82,7 +82,9 @@ class Frontend:
         self._early = None  # _Registration of a scan still waiting for the encoders
         self._keyframe_of = {}  # registration number -> keyframe index
         # scans matched about match_period apart (None: config.decimation.match_period)
-        self.decimator = ScanDecimator(match_period, config.decimation)
+        # scan_period: the laser's, measured on the recording's first scans where this front
+        # end starts later (ScanDecimator)
+        self.decimator = ScanDecimator(match_period, config.decimation, scan_period)
         self._remembered = config.remembered_registrations
 
     @property

@@ -22,6 +22,7 @@ import numpy as np
 from sclam_ros.core import se2
 from sclam_ros.frontend.config import FrontendConfig, PairingConfig, RefinementConfig
 from sclam_ros.frontend.laser_noise import LaserNoiseJudgement
+from sclam_ros.frontend.nearest import NearestReference
 from sclam_ros.frontend.reference_lines import ReferenceScan
 from sclam_ros.frontend.scan_matching import range_limit
 
@@ -148,17 +149,19 @@ def _with_covariance(information, covariance):
         return information
 
 
-def pairs(reference: ReferenceScan, moved, origin, config: PairingConfig = PairingConfig()):
+def pairs(reference: ReferenceScan, moved, origin, config: PairingConfig = PairingConfig(),
+          nearest=None):
     """(paired (n,) bool, index in `reference` of each one's point) of the new scan's points
     `moved` (n, 2), already moved by the motion being refined (the new scan's origin
     `origin` in the reference's frame): each is paired with its nearest reference point
     when it lies within config.max_pair_distance of it (in its ellipse along the line where
     the reference has a reach) and that point is within the usable range of both scans'
-    origins."""
+    origins. `nearest`: the nearest.NearestReference that follows these points, where
+    the caller moves them step by step."""
     reach = reference.reach
     max_distance = config.max_pair_distance
-    bound = max_distance if reach is None else float(reach.max())
-    dist, idx = reference.tree.query(moved, distance_upper_bound=bound)
+    nearest = nearest or NearestReference(reference.tree, search_bound(reference, config))
+    dist, idx = nearest.query(moved)
     ok = np.isfinite(dist)
     anchors = reference.anchors
     if reach is not None:
@@ -173,6 +176,11 @@ def pairs(reference: ReferenceScan, moved, origin, config: PairingConfig = Pairi
         ok[ok] = np.hypot(anchors[found, 0] - origin[0],
                           anchors[found, 1] - origin[1]) <= reference.usable_range
     return ok, idx
+
+
+def search_bound(reference: ReferenceScan, config: PairingConfig = PairingConfig()) -> float:
+    """m: how far from a new point pairs() looks for its nearest reference point."""
+    return config.max_pair_distance if reference.reach is None else float(reference.reach.max())
 
 
 def _range_weights(reference, i, nx, ny, rx, ry, z, min_cos_incidence):
@@ -190,6 +198,9 @@ def _range_weights(reference, i, nx, ny, rx, ry, z, min_cos_incidence):
     own = reference.own_ranges[i]
     wall_range = np.where(np.isnan(own), wall_range, own)
     return 1.0 / (1.0 + reference.growth * wall_range) ** 2
+
+
+_DAMPING = 1e-9 * np.eye(3)  # keeps the 3×3 normal equations solvable
 
 
 def refine(reference: ReferenceScan, points, z0, config: FrontendConfig = FrontendConfig()):
@@ -223,12 +234,13 @@ def refine_with_covariance(reference: ReferenceScan, points, z0,
     used = 0
     moved = np.empty((len(qx), 2))
     huber, pairing = config.refinement.huber, config.pairing
+    nearest = NearestReference(reference.tree, search_bound(reference, pairing))
     for _ in range(config.refinement.iterations):
         c, s = math.cos(z[2]), math.sin(z[2])
         rx, ry = c * qx - s * qy, s * qx + c * qy  # R(θ) q
         moved[:, 0] = rx + z[0]
         moved[:, 1] = ry + z[1]
-        ok, idx = pairs(reference, moved, z[:2], pairing)
+        ok, idx = pairs(reference, moved, z[:2], pairing, nearest)
         used = int(np.count_nonzero(ok))
         if used < 20:
             return np.array(z0, float), 0, None
@@ -237,14 +249,16 @@ def refine_with_covariance(reference: ReferenceScan, points, z0,
         rx, ry = rx[ok], ry[ok]
         residual = nx * (rx + z[0] - px[i]) + ny * (ry + z[1] - py[i])
         # ∂(R(θ) q + t)/∂θ = S R(θ) q: the rotated point turned by 90°.
-        jac = np.stack((nx, ny, ny * rx - nx * ry))  # (3, n)
+        jac = np.empty((3, used))
+        jac[0], jac[1] = nx, ny
+        np.subtract(ny * rx, nx * ry, out=jac[2])
         weight = np.minimum(1.0, huber / np.maximum(np.abs(residual), 1e-12))
         if reference.growth:
             range_weight = _range_weights(reference, i, nx, ny, rx, ry, z,
                                           pairing.min_cos_incidence)
             weight = weight * range_weight
         weighted = jac * weight
-        hessian = weighted @ jac.T + 1e-9 * np.eye(3)
+        hessian = weighted @ jac.T + _DAMPING
         try:
             step = -np.linalg.solve(hessian, weighted @ residual)
         except np.linalg.LinAlgError:

@@ -4,6 +4,7 @@ prints it, the node's /diagnostics show it (online.estimate.CalibratorStatus), t
 quote it; none of them reads the front end's parts."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Optional
 
@@ -46,6 +47,18 @@ class FrontendReport:
         """A noisy laser with most matches unconfirmed: on the simulator's outdoor scene
         the errors are then larger than their σ says (docs/accuracy.md)."""
         return self.noisy_laser and self.mostly_unconfirmed
+
+    def since(self, earlier: "FrontendReport") -> "FrontendReport":
+        """This report's counts less those of an earlier report of the same front end."""
+        unconfirmed = {reason: n - earlier.unconfirmed.get(reason, 0)
+                       for reason, n in self.unconfirmed.items()}
+        return dataclasses.replace(
+            self, matches=self.matches - earlier.matches,
+            unconfirmed={reason: n for reason, n in unconfirmed.items() if n},
+            odometry_guess_failures=self.odometry_guess_failures - earlier.odometry_guess_failures,
+            odometry_guess_overruled=(self.odometry_guess_overruled
+                                      - earlier.odometry_guess_overruled),
+            skipped_scans=self.skipped_scans - earlier.skipped_scans)
 
     @classmethod
     def of(cls, frontend) -> "FrontendReport":

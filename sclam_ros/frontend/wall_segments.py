@@ -38,6 +38,13 @@ def scan_pieces(points, margin, config: WallSegmentsConfig = WallSegmentsConfig(
     adaptive breakpoint detector (Borges & Aldon 2004). A full turn's last and first
     returns are consecutive too: a surface across the seam is one piece. closed: no
     breakpoint at all (one surface around the laser), then one piece."""
+    order, starts, closed = piece_bounds(points, margin, config)
+    return np.split(order, starts[1:]), closed
+
+
+def piece_bounds(points, margin, config: WallSegmentsConfig = WallSegmentsConfig()):
+    """(order, starts, closed) of scan_pieces: the returns' indices rolled so that the first
+    piece starts at 0, and where each piece starts in them (the pieces are runs of it)."""
     incidence = config.breakpoint_incidence
     n = len(points)
     bearing = np.arctan2(points[:, 1], points[:, 0])
@@ -49,11 +56,11 @@ def scan_pieces(points, margin, config: WallSegmentsConfig = WallSegmentsConfig(
              / np.sin(np.where(near, incidence - dphi, 1.0)))
     cut = ~near | (np.hypot(*(points[following] - points).T) > reach + margin)
     if not cut.any():
-        return [np.arange(n)], True
+        return np.arange(n), np.zeros(1, int), True
     # Pieces start after each cut; rolled so that the first piece starts after the first cut.
     start = int(np.argmax(cut)) + 1
     order = np.roll(np.arange(n), -start)
-    return [piece for piece in np.split(order, np.flatnonzero(cut[order][:-1]) + 1)], False
+    return order, np.concatenate(([0], np.flatnonzero(cut[order][:-1]) + 1)), False
 
 
 def wall_lines(points, noise, usable_range=np.inf, growth=0.0,

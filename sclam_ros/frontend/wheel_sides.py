@@ -33,7 +33,14 @@ class SideDisagreement:
         self._rotation = [np.zeros(len(j)) for j in self.joints]  # rad per wheel, this stretch
         self.spreads = ([], [])  # per side: spread / rotation of each completed stretch
 
+    @property
+    def compared(self) -> bool:
+        """The sides have several wheels to compare (one wheel a side has nothing to spread)."""
+        return len(self.joints[0]) >= 2
+
     def add(self, left, right) -> None:
+        if not self.compared:
+            return
         now = (np.asarray(left, float), np.asarray(right, float))
         if self._last is not None:
             for side, (position, before) in enumerate(zip(now, self._last)):
@@ -58,7 +65,7 @@ class SideDisagreement:
         """{side: {joints, rms_percent, stretches, over}} for a skid-steer (None for one wheel
         a side): ``rms_percent`` the RMS spread over ``stretches`` stretches (None if none
         was completed), ``over`` how many of them spread more than warn_percent."""
-        if len(self.joints[0]) < 2:
+        if not self.compared:
             return None
         out = {}
         for name, joints, spreads in zip(SIDES, self.joints, self.spreads):

@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from contextlib import contextmanager
+from functools import lru_cache
 from pathlib import Path
 from typing import Iterable, Iterator, Optional, Sequence
 
@@ -112,13 +113,21 @@ class ReadCounts:
     """What :func:`iter_messages` met, per topic: messages ``read`` (yielded) and ``corrupt``
     (skipped: they did not deserialize), and how often the storage itself was unreadable.
     ``used``: filled by the consumer (io/recording.py), messages it passed on to the
-    calibration (read minus those its checks rejected)."""
+    calibration (read minus those its checks rejected). ``span``: (from, to) record time (s,
+    None: open) of the messages counted; a chunk of a recording (fleet/chunked.py) counts
+    its own span only, so that the chunks' counts add up to the recording's."""
 
-    def __init__(self):
+    def __init__(self, span=(None, None)):
+        self.span = span
         self.read: Counter = Counter()
         self.used: Counter = Counter()
         self.corrupt: Counter = Counter()
         self.unreadable = 0  # storage errors stepped over (their messages are lost uncounted)
+
+    def covers(self, record_time_s: float) -> bool:
+        """Whether a message recorded at this time is counted (inside ``span``)."""
+        lo, hi = self.span
+        return (lo is None or record_time_s >= lo) and (hi is None or record_time_s < hi)
 
     def as_dict(self) -> dict:
         """{topic: {"read": n, "used": u, "corrupt": m}} for every topic seen."""
@@ -184,16 +193,17 @@ def iter_messages(
         raw = _raw_messages(reader, connections, start_ns, stop_ns, counts, path)
         for connection, timestamp_ns, data in raw:
             topic = connection.topic
+            record_time = timestamp_ns / NS_PER_S
             try:
                 msg = reader.deserialize(data, connection.msgtype)
             except Exception as exc:  # noqa: BLE001 - corrupt bytes raise assorted errors
                 if not counts.corrupt[topic]:
                     log.warning("bag %s: corrupt %s message at t = %.3f s skipped (%s); further "
-                                "ones are counted", path, topic, timestamp_ns / NS_PER_S, exc)
-                counts.corrupt[topic] += 1
+                                "ones are counted", path, topic, record_time, exc)
+                counts.corrupt[topic] += counts.covers(record_time)
                 continue
-            counts.read[topic] += 1
-            yield topic, timestamp_ns / NS_PER_S, msg
+            counts.read[topic] += counts.covers(record_time)
+            yield topic, record_time, msg
         if start is None and stop is None:
             _warn_if_short(reader, topics, counts, path)
     for topic, n in sorted(counts.corrupt.items()):
@@ -214,17 +224,41 @@ def _warn_if_short(reader: AnyReader, topics, counts: ReadCounts, path) -> None:
 
 def topic_info(path) -> dict[str, tuple[str, int]]:
     """topic -> (message type, message count)."""
-    with open_reader(path) as reader:
-        return {name: (info.msgtype, info.msgcount) for name, info in reader.topics.items()}
+    return dict(_summary(path)[0])
 
 
 def _time_span_ns(path) -> tuple[int, int]:
     """(first, last) record time of the bag's messages in integer ns; (0, 0) for an empty bag."""
+    return _summary(path)[1]
+
+
+def _summary(path):
+    """(((topic, (message type, count)), ...), (first, last) record time ns) of the bag: one
+    opening of it for what a calibration asks several times (each opening reads its metadata
+    and storage schema: ~40 ms), kept while its files are unchanged."""
+    path = Path(path)
+    try:
+        target = _reader_path(path)
+        files = sorted(target.iterdir()) if target.is_dir() else [target]
+        signature = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files)
+    except OSError:
+        signature = None  # open_reader says what is wrong
+    if signature is None:
+        return _read_summary(path)
+    return _cached_summary(str(path.resolve()), signature)
+
+
+@lru_cache(maxsize=8)
+def _cached_summary(path: str, signature) -> tuple:
+    return _read_summary(path)
+
+
+def _read_summary(path) -> tuple:
     with open_reader(path) as reader:
-        if reader.message_count == 0:
-            return 0, 0
+        topics = tuple((name, (info.msgtype, info.msgcount)) for name, info in reader.topics.items())
         # rosbags' end_time is one nanosecond after the last message.
-        return reader.start_time, reader.end_time - 1
+        span = (0, 0) if reader.message_count == 0 else (reader.start_time, reader.end_time - 1)
+    return topics, span
 
 
 def time_span(path) -> tuple[float, float]:

@@ -38,6 +38,13 @@ class Recording:
     frontend: Frontend = None
     # a skid-steer's wheels of each side compared (SideDisagreement.summary); None otherwise
     wheel_sides: dict = None
+    # what the front end did (FrontendReport): of `frontend`, or joined from a recording's
+    # chunks (fleet/chunked.py), which keep no front end
+    report: object = None
+
+    def __post_init__(self):
+        if self.report is None and self.frontend is not None:
+            self.report = self.frontend.report()
 
 
 # What each input topic must carry; anything else is a misconfigured topic name.
@@ -183,7 +190,7 @@ def _warn_about_odometry(odometry: WheelsFromOdometry, topic) -> None:
 
 
 def iter_outputs(path, params, sink, progress=None, start=None, stop=None, counts=None,
-                 odometry=None, sides=None):
+                 odometry=None, sides=None, watch=None):
     """Feed a bag's messages in record order to `sink` (a Frontend or an OnlineCalibrator:
     anything with add_encoder, add_scan and rejections), through the same conversions the
     node uses; yield what each call returns. `start`/`stop`: record-time window (s).
@@ -191,6 +198,7 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
     `odometry`: the WheelsFromOdometry that turns an odometry_topic into wheel angles (one
     with the default configuration if not given). `sides`: the SideDisagreement a
     skid-steer's wheels are compared in (one with the default configuration if not given).
+    `watch`: a SpanWatch told the record time of each message before it is fed.
 
     A message the conversions refuse is counted in the sink's rejections under its reason
     and warned about the first time that reason occurs; the others are used. Header stamps
@@ -215,7 +223,9 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
     clocks = HeaderClocks(topics)
     frames = Counter()  # scans per header.frame_id
 
-    def feed(topic, msg):
+    def feed(topic, record_time, msg):
+        if watch is not None:
+            watch.at(record_time)
         shift = clocks.shift[topic]
         try:
             if topic == wheel_topic and params.odometry_topic:
@@ -238,11 +248,11 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
                 log.warning("rejecting %s messages (counted): %s", topic, exc)
             sink.rejections.add(exc.reason)
             return _REJECTED
-        counts.used[topic] += 1
+        counts.used[topic] += counts.covers(record_time)
         return output
 
     def fed(messages):
-        outputs = (feed(topic, msg) for topic, msg in messages)
+        outputs = (feed(*message) for message in messages)
         return (output for output in outputs if output is not _REJECTED)
 
     held = []  # messages read before the clocks are decided
@@ -250,9 +260,9 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
         if progress is not None and seen % 500 == 0:
             progress(seen, total)
         if clocks.shift is not None:
-            yield from fed([(topic, msg)])
+            yield from fed([(topic, t, msg)])
             continue
-        held.append((topic, msg))
+        held.append((topic, t, msg))
         if clocks.add(topic, stamp_to_sec(msg.header.stamp), t) or len(held) >= CLOCK_HOLD_MAX:
             clocks.decide()
             yield from fed(held)
@@ -272,25 +282,67 @@ def iter_outputs(path, params, sink, progress=None, start=None, stop=None, count
         progress(total, total)
 
 
+class SpanWatch:
+    """What a front end counted while it was fed the messages of a record-time span
+    [lo, hi) (s; None: open): its rejections and its report's counts from the first
+    message at or after lo to the first at or after hi (or the end). A recording cut into
+    chunks (fleet/chunked.py) reads a lead and a tail around each span; counted by span,
+    the chunks' counts add up to what one sequential pass counts, but for what a chunk's
+    new local map changes."""
+
+    def __init__(self, frontend, span=(None, None)):
+        self.frontend = frontend
+        self.lo, self.hi = span
+        self.entered = self._snapshot() if self.lo is None else None
+        self.left = None
+
+    def _snapshot(self):
+        return Counter(self.frontend.rejections.counts), self.frontend.report()
+
+    def at(self, record_time: float) -> None:
+        if self.entered is None and record_time >= self.lo:
+            self.entered = self._snapshot()
+        if self.left is None and self.hi is not None and record_time >= self.hi:
+            self.entered = self.entered or self._snapshot()
+            self.left = self._snapshot()
+
+    def counted(self):
+        """(Rejections, FrontendReport) of the span."""
+        end = self.left or self._snapshot()
+        start = self.entered or end
+        return Rejections(end[0] - start[0]), end[1].since(start[1])
+
+
 def iter_keyframes(path, params, frontend=None, progress=None, start=None, stop=None, counts=None,
-                   sides=None):
+                   sides=None, watch=None):
     """Yield keyframes from a bag (or its record-time window [start, stop)) in record order."""
     frontend = frontend or Frontend(params)
     for keyframes in iter_outputs(path, params, frontend, progress, start, stop, counts,
-                                  sides=sides):
+                                  sides=sides, watch=watch):
         yield from keyframes
     yield from frontend.flush()
 
 
 def read_recording(path, params, progress=None, start=None, stop=None,
-                   keep_scan_points=False) -> Recording:
+                   keep_scan_points=False, counted=(None, None), scan_period=None) -> Recording:
     """keep_scan_points: the keyframes carry their scans' points (for `sclam diagnose`'s
-    map of walls)."""
-    frontend = Frontend(params, keep_scan_points=keep_scan_points)
-    counts = bag.ReadCounts()
+    map of walls). counted: the record-time span (s) whose messages, rejections and front
+    end counts the Recording counts (bag.ReadCounts.span, SpanWatch); the whole recording
+    unless given. scan_period: the laser's period measured on the recording's first scans,
+    for a read that starts later (frontend/decimation.py)."""
+    frontend = Frontend(params, keep_scan_points=keep_scan_points, scan_period=scan_period)
+    counts = bag.ReadCounts(span=counted)
     sides = SideDisagreement(params)
-    keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop, counts, sides))
-    return Recording(keyframes, frontend.rejections, counts.as_dict(), frontend, sides.summary())
+    if counted == (None, None):
+        keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop, counts,
+                                        sides))
+        return Recording(keyframes, frontend.rejections, counts.as_dict(), frontend,
+                         sides.summary())
+    watch = SpanWatch(frontend, counted)
+    keyframes = list(iter_keyframes(path, params, frontend, progress, start, stop, counts, sides,
+                                    watch))
+    rejections, report = watch.counted()
+    return Recording(keyframes, rejections, counts.as_dict(), frontend, sides.summary(), report)
 
 
 def scan_frame_id(path, topic):
