@@ -47,6 +47,23 @@ def test_conditions_change_the_writing_not_the_drive(tmp_path):
     assert made["wheel_base"] == plain["wheel_base"]
 
 
+def test_simulate_command_line_takes_the_conditions(tmp_path):
+    import json
+
+    from sclam_ros.cli import main as cli
+
+    out = tmp_path / "bag"
+    assert cli.main(["simulate", str(out), "--robot", "pioneer", "--duration", "3", "--quiet",
+                     "--no-return", "zero", "--scan-phase", "0.02", "--scan-stamp-jitter", "0.002",
+                     "--ticks-per-revolution", "500", "--slip-noise", "0"]) == 0
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["conditions"]["no_return"] == "zero" and truth["ticks_per_revolution"] == 500
+    assert truth["conditions"]["scan_phase"] == 0.02
+    assert any(r == 0.0 for m in _scans(out) for r in m.ranges)
+    assert cli.main(["simulate", str(tmp_path / "bad"), "--duration", "3", "--quiet",
+                     "--scan-stamp-jitter", "-1"]) == 2
+
+
 def test_no_return_encodings():
     ranges = np.array([1.0, np.inf, 2.0])
     for encoding, value in (("zero", 0.0), ("above_max", 21.0)):

@@ -12,6 +12,7 @@ import sys
 import time
 
 from sclam_ros.core.params import CALIBRATION_KEYS
+from sclam_ros.sim.conditions import NO_RETURN_ENCODINGS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,6 +77,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--joint-units", choices=("ticks", "rad"), default="ticks",
                         help="JointState positions in encoder ticks, or in rad as ros2_control "
                              "publishes them (default: %(default)s)")
+    conditions = parser.add_argument_group(
+        "recording conditions", "how the recording is made, apart from the robot and its drive "
+        "(sclam_ros/sim/conditions.py): what real recordings vary")
+    conditions.add_argument("--slip-noise", type=float, metavar="SIGMA",
+                            help="the wheels' slip noise, 1σ per wheel per step "
+                                 "(default: the simulator's; 0: exact encoders)")
+    conditions.add_argument("--ticks-per-revolution", type=float, metavar="N",
+                            help="encoder resolution (default: the robot preset's)")
+    conditions.add_argument("--scan-phase", type=float, metavar="S",
+                            help="s from the first encoder sample to the first scan; a multiple "
+                                 "of the encoder period puts every scan on a sample "
+                                 "(default: the simulator's)")
+    conditions.add_argument("--scan-stamp-jitter", type=float, default=0.0, metavar="S",
+                            help="1σ of each scan stamp's error, s (default: %(default)s)")
+    conditions.add_argument("--no-return", choices=NO_RETURN_ENCODINGS, default="inf",
+                            help="how a beam without a target is written (default: %(default)s)")
+    conditions.add_argument("--sweep-unstated", action="store_true",
+                            help="a sweeping laser (--effect scan_motion) writes time_increment 0")
     parser.add_argument("--overwrite", action="store_true", help="replace OUT if it exists")
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -93,6 +112,8 @@ def _key_values(items, what):
 def run(args) -> int:
     from sclam_ros.io.bag import BagError
     from sclam_ros.sim import simulate
+    from sclam_ros.sim.conditions import RecordingConditions
+    from sclam_ros.sim.record import SCAN_PHASE
 
     start = time.monotonic()
 
@@ -107,6 +128,12 @@ def run(args) -> int:
                 raise ValueError(f"--true {key} needs a value: --true {key}=VALUE")
             overrides[key] = float(value)
         effects = _key_values(args.effect, "effect")
+        conditions = RecordingConditions(
+            scan_phase=SCAN_PHASE if args.scan_phase is None else args.scan_phase,
+            scan_stamp_jitter=args.scan_stamp_jitter,
+            sweep_stated=not args.sweep_unstated, no_return=args.no_return,
+            ticks_per_revolution=args.ticks_per_revolution)
+        slip = {} if args.slip_noise is None else {"slip_noise": args.slip_noise}
         truth = simulate(
             args.out, robot=args.robot, duration=args.duration, seed=args.seed,
             true_overrides=overrides, storage=args.storage, scan_rate=args.scan_rate,
@@ -118,6 +145,7 @@ def run(args) -> int:
                        range_noise_per_m=args.range_noise_per_m, dropout=args.dropout,
                        mixed_pixels=args.mixed_pixels,
                        range_resolution=args.range_resolution),
+            conditions=conditions, **slip,
         )
     except (ValueError, BagError) as exc:
         print(f"sclam simulate: error: {exc}", file=sys.stderr)
