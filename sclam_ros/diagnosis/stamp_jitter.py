@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from sclam_ros.core import se2
+from sclam_ros.core import kinematics, se2
 from sclam_ros.diagnosis.effects.noise_fit import ml_factor
 
 # s; the largest 1σ searched. Beyond it a scan is paired with the wrong encoder sample,
@@ -30,9 +30,8 @@ MAX_JITTER_S = 0.05
 def laser_twists(wheel_speeds, k, mount) -> np.ndarray:
     """(n, 3) the laser's velocity (vx, vy, ω) in its own frame at each pose, from the
     wheels' angular speeds (n, 2) (left, right) and k = (r_l, r_r, b)."""
-    r_l, r_r, b = k
-    v = 0.5 * (wheel_speeds[:, 1] * r_r + wheel_speeds[:, 0] * r_l)
-    w = (wheel_speeds[:, 1] * r_r - wheel_speeds[:, 0] * r_l) / b
+    # K's arc length and rotation are linear in the wheel angles: per second, v and ω.
+    v, w = kinematics.arc_length_and_rotation(wheel_speeds, k)
     # The laser's point on the body moves at v + ω × t_l (base frame), seen in its frame.
     moving = np.column_stack([v - w * mount[1], w * mount[0]])
     return np.column_stack([se2.rotate_inverse(mount[2], moving), w])
