@@ -94,18 +94,26 @@ HELD_OUT = {
 SPLITS = {"tuning": (TUNING, 1), "held_out_1": (HELD_OUT_1, 101), "held_out": (HELD_OUT, 201)}
 
 
+def simulate_options(condition, drop=()):
+    """simulate()'s keyword arguments for a condition (one of the dicts above), its
+    "conditions" made a RecordingConditions; ``drop``: keys left to simulate's default."""
+    from sclam_ros.sim.conditions import RecordingConditions
+
+    kwargs = {k: v for k, v in condition.items() if k not in drop}
+    kwargs["conditions"] = RecordingConditions(**kwargs.get("conditions", {}))
+    return kwargs
+
+
 def run_case(conditions_by_name, name, seed, duration, workdir):
     from sclam_ros.core.params import SclamParams
     from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.io.recording import read_recording
     from sclam_ros.sim import simulate
-    from sclam_ros.sim.conditions import RecordingConditions
 
-    kwargs = dict(conditions_by_name[name])
-    kwargs["conditions"] = RecordingConditions(**kwargs.get("conditions", {}))
     bag = Path(workdir) / f"{list(conditions_by_name).index(name)}_{seed}"
     start = time.perf_counter()
-    simulate(bag, duration=duration, seed=seed, overwrite=True, **kwargs)
+    simulate(bag, duration=duration, seed=seed, overwrite=True,
+             **simulate_options(conditions_by_name[name]))
     params = SclamParams.from_yaml(bag / "params.yaml")
     keyframes = read_recording(bag, params, keep_scan_points=True).keyframes
     report = diagnose_keyframes(keyframes, params).report

@@ -18,6 +18,16 @@ Scenarios (PowerBot, office world, --duration s unless said):
                 10 Hz laser sweeping its whole period), 90 s. Correct: exactly that
                 effect (scan_distortion for scan_motion) selected.
 
+--held-out: seed s is recorded under held-out condition number s mod 5 of
+bench/diagnose_conditions.py's HELD_OUT (robot, encoders, laser, scene, no-return encoding,
+scan phase, stamp jitter), so 10 seeds cover each twice; use seeds from 201 (--first-seed
+201), disjoint from the tuning seeds. Carpet keeps the office scene (a condition's
+"scene" is dropped): its room n1 is the office's.
+
+Size error: carpet's variance ratio against 2.44; time_offset's value against the 20 ms
+simulated (the time_offset entry of the report, selected or not). "Within 20 %": seeds
+selected correctly with a size error within ±20 %.
+
 A false selection is a selected effect other than the correct one. "Else named": seeds
 not selected correctly where the report names the correct effect as fitting the data about
 as well as a simpler one it selected (the one-standard-error rule's alternatives). Top regressor: the
@@ -26,6 +36,7 @@ most frequent first entry of `unexplained_cause` over the seeds (with how many s
 Run: .venv/bin/python bench/diagnose_effects.py [--seeds 5] [--duration 180]
      [--scenarios carpet,speed_radius,clean,...] [--jobs 1] [--without-walls]
      [--set SECTION.FIELD=VALUE ...]   (a DiagnoseConfig value, e.g. selection.noise_folds=10)
+     [--held-out --first-seed 201]
 """
 from __future__ import annotations
 
@@ -40,6 +51,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import configured, scratch_dir, table  # noqa: E402
+from diagnose_conditions import HELD_OUT, simulate_options  # noqa: E402
 
 from sclam_ros.diagnosis.config import DiagnoseConfig  # noqa: E402
 
@@ -78,7 +90,22 @@ def _in_region(xy, region):
             & (v >= region["across"][0]) & (v <= region["across"][1]))
 
 
-def run_case(scenario, seed, duration, workdir, walls=True, config=None):
+def _size(effect, true_value):
+    """The reported value's error against the simulated one: relative, and in its σ."""
+    if effect["value"] is None:
+        return {}
+    out = {"size_error": float(effect["value"] / true_value - 1.0)}
+    if effect["sigma"]:
+        out["size_z"] = float((effect["value"] - true_value) / effect["sigma"])
+    return out
+
+
+def held_out_condition(seed):
+    """The name of the held-out recording condition seed ``seed`` runs under."""
+    return list(HELD_OUT)[seed % len(HELD_OUT)]
+
+
+def run_case(scenario, seed, duration, workdir, walls=True, config=None, held_out=False):
     from sclam_ros.core.params import SclamParams
     from sclam_ros.diagnosis.diagnose import diagnose_keyframes
     from sclam_ros.io.recording import read_recording
@@ -88,13 +115,17 @@ def run_case(scenario, seed, duration, workdir, walls=True, config=None):
     effects, expected, fixed = SCENARIOS[scenario]
     duration = fixed or duration
     bag = Path(workdir) / f"{scenario}_{seed}"
-    truth = simulate(bag, duration=duration, seed=seed, effects=effects, overwrite=True)
+    condition = held_out_condition(seed) if held_out else None
+    options = simulate_options(HELD_OUT[condition], drop=("scene",) if scenario == "carpet"
+                               else ()) if condition else {}
+    truth = simulate(bag, duration=duration, seed=seed, effects=effects, overwrite=True,
+                     **options)
     params = SclamParams.from_yaml(bag / "params.yaml")
     start = time.perf_counter()
     keyframes = read_recording(bag, params, keep_scan_points=walls).keyframes
     read_s = time.perf_counter() - start
     report = diagnose_keyframes(keyframes, params, config=config or DiagnoseConfig()).report
-    out = {"scenario": scenario, "seed": seed, "duration": duration,
+    out = {"scenario": scenario, "seed": seed, "duration": duration, "condition": condition,
            "seconds": time.perf_counter() - start, "read_seconds": read_s,
            "selected": [e["name"] for e in report["effects"] if e["selected"]],
            # value ± σ of each selected effect, in its units
@@ -127,12 +158,13 @@ def run_case(scenario, seed, duration, workdir, walls=True, config=None):
     if scenario == "carpet" and out["room_visited"] and "region" in floor:
         found_in = _in_region(odom_xy, floor["region"])
         out["overlap"] = float(np.sum(true_in & found_in) / max(np.sum(true_in | found_in), 1))
-        ratio = make_effect("floor_noise_area", effects["floor_noise_area"]).variance_ratio()
-        out["size_error"] = float(floor["value"] / ratio - 1.0)
-        if floor["sigma"]:
-            out["size_z"] = float((floor["value"] - ratio) / floor["sigma"])
+        out.update(_size(floor, make_effect("floor_noise_area",
+                                            effects["floor_noise_area"]).variance_ratio()))
         out["floor_selected"] = floor["selected"]
         out["wall_support"] = floor["region"].get("wall_support")
+    if scenario == "time_offset":
+        out.update(_size(next(e for e in report["effects"] if e["name"] == "time_offset"),
+                         effects["time_offset"]))
     return out
 
 
@@ -150,7 +182,9 @@ def _row(scenario, results):
     return [scenario, len(results), f"{sum(r['correct'] for r in results)}/{len(results)}", named,
             (f"{min(overlaps):.2f}–{max(overlaps):.2f}" if overlaps else "–"),
             (f"{min(sizes):+.0%}…{max(sizes):+.0%}" if sizes else "–"),
-            (f"{min(size_z):+.1f}…{max(size_z):+.1f}" if size_z else "–"), false,
+            (f"{min(size_z):+.1f}…{max(size_z):+.1f}" if size_z else "–"),
+            (f"{sum(r['correct'] and abs(r.get('size_error', 1)) <= 0.2 for r in results)}"
+             f"/{len(results)}" if sizes else "–"), false,
             (f"{top[0][0]} ({top[0][1]}/{len(results)})" if top else "–"),
             f"{np.median([r['seconds'] for r in results]):.0f}"]
 
@@ -167,6 +201,9 @@ def main():
                          "bounds the floor region (what the likelihood alone finds)")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
                     help="a DiagnoseConfig value other than the default (repeatable)")
+    ap.add_argument("--held-out", action="store_true",
+                    help="seed s under bench/diagnose_conditions.py's held-out condition "
+                         "number s mod 5 (use --first-seed 201)")
     args = ap.parse_args()
     config = configured(DiagnoseConfig(), args.set)
     names = [n.strip() for n in args.scenarios.split(",")]
@@ -174,7 +211,8 @@ def main():
     cases = [(n, s) for n in names for s in range(args.first_seed, args.first_seed + args.seeds)]
     results = {n: [] for n in names}
     with ProcessPoolExecutor(args.jobs) as pool:
-        futures = [pool.submit(run_case, n, s, args.duration, work, not args.without_walls, config)
+        futures = [pool.submit(run_case, n, s, args.duration, work, not args.without_walls, config,
+                               args.held_out)
                    for n, s in cases]
         for (n, s), f in zip(cases, futures):
             r = f.result()
@@ -191,17 +229,19 @@ def main():
                           f"{held_penalty if held_penalty is None else round(held_penalty, 1)})")
             values = ", ".join(f"{name} {v:.4g}" + (f" ± {sd:.2g}" if sd else "")
                                for name, (v, sd) in r["values"].items())
-            print(f"{n} seed {s}: selected {r['selected'] or 'none'}"
+            where = f" ({r['condition']})" if r["condition"] else ""
+            print(f"{n} seed {s}{where}: selected {r['selected'] or 'none'}"
                   f"{f' ({values})' if values else ''}, cause {r['cause']} "
                   f"({r['cause_fraction'] or 0:.2f}){extra}, not separable "
                   f"{[p['effects'] for p in r['not_separable']]}, {r['seconds']:.0f} s", flush=True)
     print(f"\n{args.seeds} seeds from {args.first_seed}, {args.duration:.0f} s "
           "(90 s for the library's mean effects)"
+          + (", held-out conditions (seed mod 5; carpet in the office)" if args.held_out else "")
           + (", without the map of walls" if args.without_walls else "")
           + (f", {', '.join(args.set)}" if args.set else ""))
     print(table([_row(n, results[n]) for n in names],
                 ["scenario", "seeds", "selected correctly", "else named as fitting as well",
-                 "region overlap", "size error", "size error / σ",
+                 "region overlap", "size error", "size error / σ", "within 20 %",
                  "false selections", "top regressor", "s per run"]))
 
 
