@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sclam_ros.core import graph as graph_mod
-from sclam_ros.core import kinematics
 from sclam_ros.core.estimator import calibrate_keyframes
 from sclam_ros.core.params import CALIBRATION_KEYS
 from sclam_ros.diagnosis import identifiability, report as report_mod
@@ -35,7 +34,7 @@ from sclam_ros.diagnosis.disagreement import OdometryCovariance, fitted_stamp_ji
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.evidence import effect_value
 from sclam_ros.diagnosis.fitting import Fit, component_residuals, fit_effects, paired_edges
-from sclam_ros.diagnosis.regressors import regressors
+from sclam_ros.diagnosis.regressors import pose_motion, regressors
 from sclam_ros.diagnosis.selection import stepwise_selection
 from sclam_ros.diagnosis.structure import name_structure, residual_tests, significant
 from sclam_ros.diagnosis.wall_map import WallMap
@@ -105,11 +104,16 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
     edges = paired_edges(inputs)
     odo_cov = OdometryCovariance.of(inputs, params, nominal[:3])
     regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0], base.values["poses"])
+    # The residual tests take the motion from the poses: the wheels' own would carry the
+    # wheel noise that the odometry residuals are made of (regressors.regressors).
+    moved = pose_motion(inputs, base.values["poses"])
+    test_regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0],
+                           base.values["poses"], motion=moved)
     odo_pos = {int(a): n for n, a in enumerate(inputs.odo_from)}
     edge_reg = np.array([odo_pos[int(a)] for a in edges.pose_i], int)
     before = component_residuals(problem, base.values, edges)
     edge_of = {c: edge_reg for c in before}
-    tests_before = residual_tests(before, regs, edge_of, config.structure)
+    tests_before = residual_tests(before, test_regs, edge_of, config.structure)
 
     say(f"{selection.folds}-fold time-block cross-validation ({selection.noise_folds} spread "
         "folds for noise effects)")
@@ -131,9 +135,8 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
     say("refitting with the selected effects: " + (", ".join(selected) or "none"))
     ext, final = _extended_fit(models, selected)
     after = component_residuals(ext.problem, ext.values, edges)
-    tests_after = residual_tests(after, regs, edge_of, config.structure)
+    tests_after = residual_tests(after, test_regs, edge_of, config.structure)
     structure_after = significant(tests_after, config.structure)
-    motion = kinematics.forward(inputs.odo_dphi, ext.values["odometry"][0])
     shift = identifiability.calibration_shift(base, ext, CALIBRATION_KEYS) if selected else {}
     report = {
         "base": report_mod.model_summary(base, base_error),
@@ -149,11 +152,11 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
         # The regressors that explain most of what is left (over the structured
         # components), with the fraction each explains.
         "unexplained_cause": name_structure(
-            {c: r for c, r in after.items() if c.startswith("odometry.")}, regs, edge_reg,
-            motion, config.structure),
+            {c: r for c, r in after.items() if c.startswith("odometry.")}, test_regs, edge_reg,
+            moved, config.structure),
         "not_separable": pairs,
         "calibration_shift_sigma": shift,
         "warnings": report_mod.warnings(selected, shift, pairs,
                                         config.identifiability.max_shift_sigma),
     }
-    return Diagnosis(report, before, after, regs, edge_of, tests_before, tests_after, config)
+    return Diagnosis(report, before, after, test_regs, edge_of, tests_before, tests_after, config)

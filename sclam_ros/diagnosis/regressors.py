@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sclam_ros.core import kinematics
+from sclam_ros.core import kinematics, se2
 
 
 def _gradient(values, times):
@@ -19,16 +19,41 @@ def _gradient(values, times):
     return out
 
 
-def regressors(inputs, data, wheel_angles, k, poses) -> dict:
-    """name -> (m_o, c) array over the odometry edges (c columns of one explanation)."""
+def pose_motion(inputs, poses) -> np.ndarray:
+    """(m_o, 3) each odometry edge's motion (x, y, θ in the frame of its first pose) as the
+    graph's poses have it."""
+    return se2.between(poses[inputs.odo_from + 1], poses[inputs.odo_from])
+
+
+def arc_length(motion) -> np.ndarray:
+    """(m,) signed length of the arc through each motion's chord (x, y, θ)."""
+    half = 0.5 * motion[:, 2]
+    chord = np.hypot(motion[:, 0], motion[:, 1]) * np.sign(motion[:, 0])
+    return chord * np.where(np.abs(half) > 1e-9, half / np.sin(np.where(half == 0, 1.0, half)), 1.0)
+
+
+def regressors(inputs, data, wheel_angles, k, poses, motion=None) -> dict:
+    """name -> (m_o, c) array over the odometry edges (c columns of one explanation).
+
+    motion: (m_o, 3) the edges' motion the speeds and turn rates are taken from (default:
+    the wheels'). A residual tested against a regressor must not share its noise: the
+    odometry residual is the poses' motion minus the wheels', so against the wheels' own
+    turn rate it correlates on a straight drive, where that turn rate is the wheels' noise
+    alone. The structure tests take the poses' motion (pose_motion), which the laser
+    determines several times more precisely than the wheels."""
     i, j = inputs.odo_from, inputs.odo_from + 1
     t = data.stamps
     dt = np.maximum(t[j] - t[i], 1e-3)
-    s, theta = kinematics.arc_length_and_rotation(inputs.odo_dphi, k)
+    if motion is None:
+        s, theta = kinematics.arc_length_and_rotation(inputs.odo_dphi, k)
+    else:
+        s, theta = arc_length(motion), motion[:, 2]
     v, w = s / dt, theta / dt
     mid = 0.5 * (t[i] + t[j])
     r = np.asarray(k, float)
     body_w = (data.wheel_speeds[:, 1] * r[1] - data.wheel_speeds[:, 0] * r[0]) / r[2]
+    if motion is not None:  # the turn rate's change over each edge, from the same motion
+        body_w = np.interp(t, mid, w)
     pos = 0.5 * (poses[i, :2] + poses[j, :2])
     heading = poses[i, 2] + 0.5 * theta
     groups = {
