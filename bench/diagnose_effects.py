@@ -20,8 +20,8 @@ Scenarios (PowerBot, office world, --duration s unless said):
 
 --held-out: seed s is recorded under held-out condition number s mod 5 of
 bench/diagnose_conditions.py's HELD_OUT (robot, encoders, laser, scene, no-return encoding,
-scan phase, stamp jitter), so 10 seeds cover each twice; use seeds from 201 (--first-seed
-201), disjoint from the tuning seeds. Carpet keeps the office scene and the default slip
+scan phase, stamp jitter), so 10 seeds cover each twice; use seeds from 301 (--first-seed
+301), disjoint from the tuning seeds. Carpet keeps the office scene and the default slip
 noise (a condition's "scene" and "slip_noise" are dropped): its room n1 is the office's,
 and the simulated carpet scales the recording's slip noise (sim.effects.FloorNoiseArea),
 so on exact encoders (slip_noise 0) there would be no carpet at all.
@@ -38,7 +38,7 @@ most frequent first entry of `unexplained_cause` over the seeds (with how many s
 Run: .venv/bin/python bench/diagnose_effects.py [--seeds 5] [--duration 180]
      [--scenarios carpet,speed_radius,clean,...] [--jobs 1] [--without-walls]
      [--set SECTION.FIELD=VALUE ...]   (a DiagnoseConfig value, e.g. selection.noise_folds=10)
-     [--held-out --first-seed 201]
+     [--held-out --first-seed 301]
 """
 from __future__ import annotations
 
@@ -206,7 +206,7 @@ def main():
                     help="a DiagnoseConfig value other than the default (repeatable)")
     ap.add_argument("--held-out", action="store_true",
                     help="seed s under bench/diagnose_conditions.py's held-out condition "
-                         "number s mod 5 (use --first-seed 201)")
+                         "number s mod 5 (use --first-seed 301)")
     args = ap.parse_args()
     config = configured(DiagnoseConfig(), args.set)
     names = [n.strip() for n in args.scenarios.split(",")]
