@@ -157,8 +157,9 @@ def merged_keyframe(segment, index, config: GraphConfig = GraphConfig()):
     ``index − 1``."""
     kf = _node(segment[-1], index)
     if all(s.dphi is not None for s in segment):
-        kf.dphi_parts = np.array([s.dphi for s in segment])
-        kf.dphi = kf.dphi_parts.sum(axis=0)
+        kf.dphi_parts = np.concatenate([s.dphi[None] if s.dphi_parts is None else s.dphi_parts
+                                        for s in segment])
+        kf.dphi = np.sum([s.dphi for s in segment], axis=0)
         if any(s.path_variance is not None for s in segment):
             kf.path_variance = float(sum(s.path_variance or 0.0 for s in segment))
     if all(_chained(s) for s in segment):

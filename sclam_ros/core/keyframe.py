@@ -28,7 +28,9 @@ class Keyframe:
     # encoder samples (frontend/encoder_stream.py EncoderStream._path_variance; None: none known)
     path_variance: Optional[float] = None
     dphi: Optional[np.ndarray] = None  # (2,) increments since keyframe index − 1
-    dphi_parts: Optional[np.ndarray] = None  # (n, 2) the same per scan, when merged
+    # (n, 2) the same split where the odometry composes one arc per part: at encoder
+    # samples (frontend: SyncConfig.min_arc) and at the scans of a merged keyframe
+    dphi_parts: Optional[np.ndarray] = None
     laser_from: Optional[int] = None  # keyframe index the scan match is relative to
     laser_motion: Optional[np.ndarray] = None  # z: laser_j ⊖ laser_from, in that frame
     laser_information: Optional[np.ndarray] = None  # (3, 3)

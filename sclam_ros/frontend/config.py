@@ -153,6 +153,13 @@ class SyncConfig:
     max_history: float = 10.0
     # s (scan time) a scan waits for the encoder stream to reach its stamp.
     max_scan_latency: float = 1.0
+    # s: the shortest wheel-odometry arc between two synced scans. The odometry model
+    # composes one arc per part, exact while the wheel speeds keep their ratio; one arc
+    # over a 0.3 s match interval misses the sideways motion of a changing turn rate by
+    # v·Δω·Δt²/12 (0.4 mm RMS on simulated drives, as large as the laser's own error, and
+    # structure against the angular acceleration in the residuals). Parts end at encoder
+    # samples at least this far apart: the error falls as the cube of the part's length.
+    min_arc: float = 0.05
     # s: samples further apart than this are interpolated on a curve (EncoderStream._curved:
     # the cubic through two samples before and two after the stamp, or the parabola through
     # the one before and the two around it where no second sample follows), not on the

@@ -193,6 +193,20 @@ class EncoderStream:
         k = self._rad_per_unit
         return [EncoderSample(t, l * k, r * k) for t, l, r in zip(self._stamps, self._left, self._right)]
 
+    def angles_between(self, t0: float, t1: float, segment: int) -> np.ndarray:
+        """(k, 2) rad: the held samples of `segment` strictly between t0 and t1, at least
+        config.min_arc apart and from both ends (the cuts of an edge's arcs)."""
+        k = self._rad_per_unit
+        out, last = [], t0
+        lo, hi = bisect.bisect_right(self._stamps, t0), bisect.bisect_left(self._stamps, t1)
+        for i in range(lo, hi):
+            t = self._stamps[i]
+            if self._segments[i] == segment and t - last >= self.config.min_arc \
+                    and t1 - t >= self.config.min_arc:
+                out.append((self._left[i] * k, self._right[i] * k))
+                last = t
+        return np.array(out, float).reshape(-1, 2)
+
     def wheel_angles_at(self, t: float) -> Optional[WheelAngles]:
         """Wheel angles at ``t`` by linear interpolation, or None where they are unknown."""
         return self.lookup(t)[0]

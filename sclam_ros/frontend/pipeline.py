@@ -147,6 +147,10 @@ class Frontend:
             increment, reason = increment_between(self._previous, synced, self.stream)
             if increment is not None:
                 kf.dphi = np.asarray(increment.dphi, float)
+                if len(synced.between):  # one arc per stretch between encoder samples
+                    cuts = np.vstack([self._previous.wheels.angles, synced.between,
+                                      synced.wheels.angles])
+                    kf.dphi_parts = np.diff(cuts, axis=0)
                 # Both ends in one encoder segment: their cumulative path variances differ
                 # by the intervals completed in between.
                 kf.path_variance = max(

@@ -10,7 +10,7 @@ offline (a bag read in record order) use the same code; memory stays bounded.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterable, Iterator, Optional
 
 import numpy as np
@@ -26,6 +26,9 @@ class SyncedScan:
     index: int
     scan: Scan
     wheels: WheelAngles
+    # (k, 2) rad: encoder samples since the previous synced scan of the same segment, the
+    # cuts between its odometry arcs (EncoderStream.angles_between; empty: one arc)
+    between: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 @dataclass
@@ -81,6 +84,7 @@ class ScanSynchronizer:
         self._last_scan_stamp: Optional[float] = None
         self._next_index = 0
         self._stream_resets = 0
+        self._last_synced: Optional[WheelAngles] = None
 
     def add_encoder(self, stamp: float, left_raw: float, right_raw: float) -> list[SyncedScan]:
         self.stream.add(stamp, left_raw, right_raw)
@@ -145,10 +149,19 @@ class ScanSynchronizer:
             if wheels is None:
                 self.rejections.add(f"scan_{reason}")
                 continue
-            ready.append(SyncedScan(self._next_index, scan, wheels))
+            previous = self._last_synced
+            between = (self.stream.angles_between(previous.stamp, wheels.stamp, wheels.segment)
+                       if previous is not None and previous.segment == wheels.segment
+                       else np.zeros((0, 2)))
+            ready.append(SyncedScan(self._next_index, scan, wheels, between))
+            self._last_synced = wheels
             self._next_index += 1
-        # Nothing older than the oldest pending scan (or the newest scan) is needed any more.
+        # Nothing older than the oldest pending scan (or the newest scan) is needed any
+        # more, nor older than the last synced scan: the samples since it cut the next
+        # edge's arcs.
         horizon = self._pending[0].stamp if self._pending else newest_scan
+        if horizon is not None and self._last_synced is not None:
+            horizon = min(horizon, self._last_synced.stamp)
         if horizon is not None:
             self.stream.discard_before(horizon)
         return ready
