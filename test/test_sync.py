@@ -430,3 +430,48 @@ def test_sideways_path_variance_at_1_hz_covers_the_path_between_samples(tmp_path
     assert 0.5 < rms_ratio(True, np.ones(len(sideways), bool)) < 1.5
     assert 0.5 < rms_ratio(True, top) < 1.5
     assert rms_ratio(False, top) > 1.5
+
+
+def test_the_arcs_cut_at_encoder_samples_follow_a_changing_turn_rate():
+    """A scan every 0.3 s, encoders at 50 Hz, the turn rate ramping: the samples between
+    two synced scans cut the edge into arcs ≥ SyncConfig.min_arc long, and composed they
+    follow the true path where one arc over the edge misses its sideways motion."""
+    from sclam_ros.core import kinematics, se2
+
+    k = np.array([0.1, 0.1, 0.5])
+    rate, period, speed = 50.0, 0.3, 0.4  # Hz, s, m/s
+    fine = np.arange(0.0, 2.0 + 1e-9, 1e-4)  # s: the true path, integrated finely
+    omega = 1.5 * np.sin(2.0 * fine)  # rad/s, changing all the time
+    step = np.stack([(speed - omega * k[2] / 2) / k[0], (speed + omega * k[2] / 2) / k[1]], -1) * 1e-4
+    angles = np.vstack([np.zeros(2), np.cumsum(step[:-1], axis=0)])
+    pose = np.zeros((len(fine), 3))
+    for i in range(1, len(fine)):
+        pose[i] = se2.compose(pose[i - 1], kinematics.forward(step[i - 1], k))
+    stream = EncoderStream(ticks_per_revolution=0.0, config=SyncConfig(max_history=100.0))
+    sync = ScanSynchronizer(stream)
+    synced = []
+    sample_times = np.arange(0.0, 2.0 + 1e-9, 1.0 / rate)
+    scan_times = iter(np.arange(0.013, 1.9, period))
+    next_scan = next(scan_times)
+    for t in sample_times:
+        i = int(round(t / 1e-4))
+        synced += sync.add_encoder(t, *angles[i])
+        while next_scan is not None and next_scan <= t:
+            synced += sync.add_scan(scan_at(next_scan))
+            next_scan = next(scan_times, None)
+    synced += sync.flush()
+    assert len(synced) >= 5
+    single, cut = [], []
+    for a, b in zip(synced[:-1], synced[1:]):
+        ia, ib = int(round(a.scan.stamp / 1e-4)), int(round(b.scan.stamp / 1e-4))
+        truth = se2.between(pose[ib], pose[ia])
+        assert len(b.between) >= 4  # samples ≥ 0.05 s apart inside a 0.3 s edge
+        parts = np.diff(np.vstack([a.wheels.angles, b.between, b.wheels.angles]), axis=0)
+        single.append(se2.between(truth, kinematics.forward(b.wheels.angles - a.wheels.angles, k)))
+        cut.append(se2.between(truth, kinematics.forward_composed(parts, k)[0]))
+    single, cut = np.abs(single), np.abs(cut)
+    assert single[:, 1].max() > 2e-4  # m: one arc misses the sideways motion
+    assert cut[:, 1].max() < 0.1 * single[:, 1].max()
+    # the heading is linear in the wheel angles: the same either way (its error is the
+    # interpolation's at the scans' stamps)
+    np.testing.assert_allclose(cut[:, 2], single[:, 2], atol=1e-12)
