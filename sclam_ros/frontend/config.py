@@ -156,9 +156,10 @@ class SyncConfig:
     # s: the shortest wheel-odometry arc between two synced scans. The odometry model
     # composes one arc per part, exact while the wheel speeds keep their ratio; one arc
     # over a 0.3 s match interval misses the sideways motion of a changing turn rate by
-    # v·Δω·Δt²/12 (0.4 mm RMS on simulated drives, as large as the laser's own error, and
-    # structure against the angular acceleration in the residuals). Parts end at encoder
-    # samples at least this far apart: the error falls as the cube of the part's length.
+    # v·Δω·Δt²/12, as large as the laser's own sideways error, and shows as structure
+    # against the angular acceleration (docs/diagnose.md). Parts end at encoder samples
+    # at least this far apart: the sideways error falls as the square of the part's length
+    # per part, as its cube per second of driving.
     min_arc: float = 0.05
     # s: samples further apart than this are interpolated on a curve (EncoderStream._curved:
     # the cubic through two samples before and two after the stamp, or the parabola through
