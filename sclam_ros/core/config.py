@@ -38,7 +38,7 @@ class GraphConfig:
     # × the wheels' step: the gate grows with the motion a calibration error scales
     init_gate_relative: float = 0.2
     # × the constant-speed arc's σ: the sideways path σ of an edge composed of several
-    # per-scan arcs, which follow most of the path's accelerations
+    # arcs (one per stretch between encoder samples), which follow the path's accelerations
     composed_path_sigma_scale: float = 0.5
     # lag-1 correlation of consecutive scan-match errors (a shared scan enters both with
     # opposite signs); the smaller measured magnitude, so merged covariances err large

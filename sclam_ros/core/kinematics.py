@@ -139,8 +139,9 @@ def forward_composed(parts, k):
 
     parts: (..., n, 2) wheel increments of the sub-intervals (zero rows are identity
     motions, so ragged edges can be padded); k: (3,) or one per edge (..., 3). One arc
-    over a long edge assumes constant curvature; composing the per-scan arcs keeps the
-    model exact when the curvature changes within the edge (S-curves, accelerations).
+    over a long edge assumes constant curvature; composing the arcs between encoder
+    samples keeps the model exact to their length's cube when the curvature changes
+    within the edge (S-curves, accelerations).
 
     In closed form rather than step by step (it is the hot loop of a window solve):
     with θ̄ᵢ the heading before step i (the sum of the earlier steps' rotations),

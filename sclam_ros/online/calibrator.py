@@ -3,7 +3,7 @@
 OnlineCalibrator wires the parts and decides when each runs:
   - Arriving keyframes (one per scan) are merged into `params.keyframe_interval` chunks
     before they enter the window, exactly as the batch calibrator merges them
-    (graph.merge_keyframes): the same long edges and per-scan arcs, and ~5× fewer poses.
+    (graph.merge_keyframes): the same long edges and arcs, and ~5× fewer poses.
   - The newest metres are kept as poses in the graph that is solved (pose_window.py); older
     keyframes are marginalised in chunks (marginalise.py) into Gaussians on the calibration,
     kept as a prior under the radii's change model (history.py, change.py).

@@ -3,9 +3,9 @@
 The extended odometry edge is
     e = (x_j ⊖ x_i) ⊖ m,   m = K(dφ', k_e) + Σ Δm,
 with dφ' and k_e the increments and wheel parameters after the effects' hooks, Δm the
-motion terms (see base.ModelEffect). A merged edge (graph.merge_keyframes, with per-scan
-``parts``) composes its per-scan arcs as factors.OdometryFactor does, and the effects act
-on the composed motion:
+motion terms (see base.ModelEffect). An edge with ``parts`` (cut at encoder samples
+and, merged by graph.merge_keyframes, at scans) composes their arcs as
+factors.OdometryFactor does, and the effects act on the composed motion:
     m = K∘(parts, k_e) + [K(dφ', k_e) − K(dφ, k_e)] + Σ Δm,
 i.e. per-edge wheel parameters (radius_drift) enter the composition exactly, an increment
 correction (time_offset: δ·(ω_j − ω_i), which lives at the edge's two ends) perturbs the
