@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sclam_ros.core import kinematics
 from sclam_ros.diagnosis.config import DiagnoseConfig
 from sclam_ros.diagnosis.disagreement import OdometryCovariance, edge_nll, fit_noise_effects
 from sclam_ros.diagnosis.effects import LIBRARY, EffectData
 from sclam_ros.diagnosis.fitting import Edges, Fit, component_residuals, fit_base, fit_effects, subset
+from sclam_ros.diagnosis.regressors import pose_motion
 from sclam_ros.diagnosis.structure import regressor_shares, residual_tests, significant
 
 
@@ -90,7 +90,7 @@ class Models:
         """regressor -> fraction of the odometry residuals' structure it explains, left by
         the mechanical effects of `names` fitted on the whole run ({} if none is left)."""
         fit, residuals = self.odometry_residuals(names)
-        motion = kinematics.forward(self.inputs.odo_dphi, fit.values["odometry"][0])
+        motion = pose_motion(self.inputs, fit.values["poses"])  # as the regressors take it
         return regressor_shares(residuals, self.regs, self.edge_reg, motion,
                                 self.config.structure)[0]
 

@@ -103,17 +103,16 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
     wheel_angles = np.array([kf.wheel_angles for kf in merged], float).reshape(-1, 2)
     edges = paired_edges(inputs)
     odo_cov = OdometryCovariance.of(inputs, params, nominal[:3])
-    regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0], base.values["poses"])
     # The residual tests take the motion from the poses: the wheels' own would carry the
     # wheel noise that the odometry residuals are made of (regressors.regressors).
     moved = pose_motion(inputs, base.values["poses"])
-    test_regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0],
-                           base.values["poses"], motion=moved)
+    regs = regressors(inputs, data, wheel_angles, base.values["odometry"][0],
+                      base.values["poses"], motion=moved)
     odo_pos = {int(a): n for n, a in enumerate(inputs.odo_from)}
     edge_reg = np.array([odo_pos[int(a)] for a in edges.pose_i], int)
     before = component_residuals(problem, base.values, edges)
     edge_of = {c: edge_reg for c in before}
-    tests_before = residual_tests(before, test_regs, edge_of, config.structure)
+    tests_before = residual_tests(before, regs, edge_of, config.structure)
 
     say(f"{selection.folds}-fold time-block cross-validation ({selection.noise_folds} spread "
         "folds for noise effects)")
@@ -135,7 +134,7 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
     say("refitting with the selected effects: " + (", ".join(selected) or "none"))
     ext, final = _extended_fit(models, selected)
     after = component_residuals(ext.problem, ext.values, edges)
-    tests_after = residual_tests(after, test_regs, edge_of, config.structure)
+    tests_after = residual_tests(after, regs, edge_of, config.structure)
     structure_after = significant(tests_after, config.structure)
     shift = identifiability.calibration_shift(base, ext, CALIBRATION_KEYS) if selected else {}
     report = {
@@ -152,11 +151,11 @@ def diagnose_keyframes(keyframes, params, effect_names=None, folds=None, noise_f
         # The regressors that explain most of what is left (over the structured
         # components), with the fraction each explains.
         "unexplained_cause": name_structure(
-            {c: r for c, r in after.items() if c.startswith("odometry.")}, test_regs, edge_reg,
+            {c: r for c, r in after.items() if c.startswith("odometry.")}, regs, edge_reg,
             moved, config.structure),
         "not_separable": pairs,
         "calibration_shift_sigma": shift,
         "warnings": report_mod.warnings(selected, shift, pairs,
                                         config.identifiability.max_shift_sigma),
     }
-    return Diagnosis(report, before, after, test_regs, edge_of, tests_before, tests_after, config)
+    return Diagnosis(report, before, after, regs, edge_of, tests_before, tests_after, config)
