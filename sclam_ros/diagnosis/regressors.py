@@ -27,9 +27,8 @@ def pose_motion(inputs, poses) -> np.ndarray:
 
 def arc_length(motion) -> np.ndarray:
     """(m,) signed length of the arc through each motion's chord (x, y, θ)."""
-    half = 0.5 * motion[:, 2]
     chord = np.hypot(motion[:, 0], motion[:, 1]) * np.sign(motion[:, 0])
-    return chord * np.where(np.abs(half) > 1e-9, half / np.sin(np.where(half == 0, 1.0, half)), 1.0)
+    return chord / np.sinc(motion[:, 2] / (2 * np.pi))  # chord = arc · sin(θ/2) / (θ/2)
 
 
 def regressors(inputs, data, wheel_angles, k, poses, motion=None) -> dict:
@@ -44,16 +43,14 @@ def regressors(inputs, data, wheel_angles, k, poses, motion=None) -> dict:
     i, j = inputs.odo_from, inputs.odo_from + 1
     t = data.stamps
     dt = np.maximum(t[j] - t[i], 1e-3)
+    mid = 0.5 * (t[i] + t[j])
     if motion is None:
         s, theta = kinematics.arc_length_and_rotation(inputs.odo_dphi, k)
+        body_w = kinematics.arc_length_and_rotation(data.wheel_speeds, k)[1]  # at each pose
     else:
         s, theta = arc_length(motion), motion[:, 2]
+        body_w = np.interp(t, mid, theta / dt)  # the same motion's turn rate at each pose
     v, w = s / dt, theta / dt
-    mid = 0.5 * (t[i] + t[j])
-    r = np.asarray(k, float)
-    body_w = (data.wheel_speeds[:, 1] * r[1] - data.wheel_speeds[:, 0] * r[0]) / r[2]
-    if motion is not None:  # the turn rate's change over each edge, from the same motion
-        body_w = np.interp(t, mid, w)
     pos = 0.5 * (poses[i, :2] + poses[j, :2])
     heading = poses[i, 2] + 0.5 * theta
     groups = {
